@@ -1,0 +1,37 @@
+"""lite_vo: semi-dense direct visual odometry (Schoeps, Engel, Cremers, ISMAR 2014) in Python.
+
+Public API (imported lazily so ``import lite_vo`` stays cheap and compiles no kernels):
+
+* :func:`open_sequence` - read TUM, EuRoC, image-folder, video and live-camera sequences
+* :func:`load_profile` - a validated :class:`VOConfig` from a shipped profile or TOML file
+* :class:`VisualOdometry` - ``process(image, timestamp) -> FrameResult``, ``depth_map()``
+
+The core never imports ``ar_demo``, pybullet, trimesh or moderngl.
+"""
+from __future__ import annotations
+
+import logging
+
+__version__ = "0.1.0"
+
+logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+_LAZY = {
+    "open_sequence": ("lite_vo.io", "open_sequence"),
+    "load_profile": ("lite_vo.config", "load_profile"),
+    "VOConfig": ("lite_vo.config", "VOConfig"),
+    "VisualOdometry": ("lite_vo.system", "VisualOdometry"),
+    "FrameResult": ("lite_vo.system", "FrameResult"),
+    "OutputSink": ("lite_vo.system", "OutputSink"),
+    "LiteVOError": ("lite_vo.errors", "LiteVOError"),
+}
+
+__all__ = sorted(_LAZY) + ["__version__"]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+        module, attr = _LAZY[name]
+        return getattr(importlib.import_module(module), attr)
+    raise AttributeError(f"module 'lite_vo' has no attribute {name!r}")

@@ -1,0 +1,219 @@
+"""Configuration: frozen dataclasses per subsystem, combined in :class:`VOConfig`, loaded from
+TOML profiles (``profiles/*.toml``, installed as ``lite_vo.profiles``).
+
+Every field is declared with :func:`param` (default, one doc line, valid range or choices).
+Loading rejects unknown sections and keys, wrong types and out-of-range values with a
+:class:`~lite_vo.errors.ConfigError` naming the profile, section and key.
+
+A profile may start with ``base = "other"`` to inherit another profile and change a few values.
+Command-line overrides are ``section.key=value`` strings (value in TOML syntax; bare words are
+taken as strings).
+
+Imports: numpy-free, no numba; may import the ``config`` modules of tracking and mapping only.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field, fields
+from importlib import resources
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+try:  # Python 3.11+
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+from .config_fields import param
+from .errors import ConfigError
+
+
+@dataclass(frozen=True)
+class ResolutionConfig:
+    """Image sizes: mapping resolution and how much coarser tracking runs."""
+    map_width: int = param(320, "mapping image width in pixels; the height follows the camera's aspect ratio", 32, 4096)
+    track_level: int = param(1, "finest pyramid level used for tracking (0 = mapping resolution, 1 = half)", 0, 4)
+    pyramid_levels: int = param(5, "number of pyramid levels (level 0 = mapping resolution)", 1, 7)
+
+
+@dataclass(frozen=True)
+class SystemConfig:
+    """How tracking and mapping are scheduled and initialised."""
+    mode: str = param("sync", "sync: deterministic, one thread; realtime: two threads at the frames' timestamps",
+                      choices=("sync", "realtime"))
+    map_every: int = param(1, "sync mode: run a mapping iteration every k-th tracked frame", 1, 30)
+    map_every_startup: int = param(4, "sync mode: mapping interval during the first startup_s seconds (paper: every 4th frame)", 1, 30)
+    startup_s: float = param(3.0, "duration of the start-up phase in seconds", 0.0, 60.0)
+    init: str = param("auto", "map initialisation: depth image, random depth, or depth when the sequence has it",
+                      choices=("auto", "depth", "random"))
+    numba_threads: int = param(0, "numba threads for parallel kernels (0 = all cores)", 0, 256)
+    seed: int = param(0, "seed for random initialisation", 0, 2**31 - 1)
+    max_lost_frames: int = param(30, "re-initialise the map after this many consecutive lost frames", 1, 10000)
+    realtime_speed: float = param(1.0, "realtime mode: playback speed relative to the timestamps", 0.01, 100.0)
+
+
+def _section_types() -> dict[str, type]:
+    from .mapping.config import MappingConfig
+    from .tracking.config import TrackingConfig
+    return {"resolution": ResolutionConfig, "tracking": TrackingConfig,
+            "mapping": MappingConfig, "system": SystemConfig}
+
+
+def _default(cls_name: str):
+    return field(default_factory=lambda: _section_types()[cls_name]())
+
+
+@dataclass(frozen=True)
+class VOConfig:
+    """The whole configuration of the visual odometry system."""
+    resolution: ResolutionConfig = _default("resolution")
+    tracking: Any = _default("tracking")
+    mapping: Any = _default("mapping")
+    system: SystemConfig = _default("system")
+    name: str = "default"
+
+    def replace(self, **sections) -> "VOConfig":
+        return dataclasses.replace(self, **sections)
+
+    def to_dict(self) -> dict:
+        return {s: dataclasses.asdict(getattr(self, s)) for s in _section_types()} | {"name": self.name}
+
+
+def describe(cls) -> list[tuple[str, Any, str, str]]:
+    """(name, default, valid range, doc) of each field of a section class."""
+    out = []
+    for f in fields(cls):
+        md = f.metadata
+        if md.get("choices"):
+            rng = "one of " + ", ".join(map(str, md["choices"]))
+        else:
+            rng = f"[{md.get('lo')}, {md.get('hi')}]"
+        out.append((f.name, f.default, rng, md.get("doc", "")))
+    return out
+
+
+def _check_value(where: str, f: dataclasses.Field, value: Any) -> Any:
+    expected = f.type if isinstance(f.type, type) else {"int": int, "float": float, "bool": bool,
+                                                        "str": str}.get(str(f.type))
+    if expected is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+    elif expected is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+    elif expected is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        value = float(value)
+        if value != value:
+            raise ConfigError(f"{where}: NaN is not allowed")
+    elif expected is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+    md = f.metadata
+    if md.get("choices") and value not in md["choices"]:
+        raise ConfigError(f"{where}: {value!r} is not one of {', '.join(map(str, md['choices']))}")
+    lo, hi = md.get("lo"), md.get("hi")
+    if lo is not None and value < lo or hi is not None and value > hi:
+        raise ConfigError(f"{where}: {value!r} is out of range [{lo}, {hi}]")
+    return value
+
+
+def build_config(data: Mapping[str, Any], source: str = "profile", name: str = "custom") -> VOConfig:
+    """Validate a nested mapping ``{section: {key: value}}`` and build a :class:`VOConfig`."""
+    types = _section_types()
+    sections = {}
+    for sec, values in data.items():
+        if sec not in types:
+            raise ConfigError(f"{source}: unknown section [{sec}] (known: {', '.join(types)})")
+        if not isinstance(values, Mapping):
+            raise ConfigError(f"{source}: [{sec}] must be a table of key = value")
+        cls = types[sec]
+        by_name = {f.name: f for f in fields(cls)}
+        kwargs = {}
+        for key, value in values.items():
+            if key not in by_name:
+                raise ConfigError(f"{source}: unknown key {sec}.{key}")
+            kwargs[key] = _check_value(f"{source}: {sec}.{key}", by_name[key], value)
+        sections[sec] = cls(**kwargs)
+    cfg = VOConfig(name=name, **sections)
+    _check_consistency(cfg, source)
+    return cfg
+
+
+def _check_consistency(cfg: VOConfig, source: str) -> None:
+    r = cfg.resolution
+    if r.track_level >= r.pyramid_levels:
+        raise ConfigError(f"{source}: resolution.track_level ({r.track_level}) must be below "
+                          f"resolution.pyramid_levels ({r.pyramid_levels})")
+
+
+def profile_names() -> list[str]:
+    """Names of the profiles shipped with the package."""
+    return sorted(p.name[:-5] for p in resources.files("lite_vo.profiles").iterdir()
+                  if p.name.endswith(".toml"))
+
+
+def _read_profile(name_or_path: str | os.PathLike, seen: tuple = ()) -> tuple[dict, str, str]:
+    s = str(name_or_path)
+    if s.endswith(".toml") or os.sep in s or "/" in s:
+        path = Path(s)
+        if not path.is_file():
+            raise ConfigError(f"{path}: profile file not found")
+        text, source, name = path.read_text(encoding="utf-8"), str(path), path.stem
+        base_dir = path.parent
+    else:
+        res = resources.files("lite_vo.profiles").joinpath(s + ".toml")
+        if not res.is_file():
+            raise ConfigError(f"unknown profile {s!r} (available: {', '.join(profile_names())})")
+        text, source, name = res.read_text(encoding="utf-8"), f"profile {s}", s
+        base_dir = None
+    if name in seen:
+        raise ConfigError(f"{source}: profile inheritance loop via {name!r}")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{source}: not valid TOML ({err})") from None
+    base = data.pop("base", None)
+    if base is not None:
+        if not isinstance(base, str):
+            raise ConfigError(f"{source}: base must be a profile name or path")
+        if base_dir is not None and (base_dir / base).is_file():
+            base = str(base_dir / base)
+        parent, _, _ = _read_profile(base, seen + (name,))
+        for sec, values in data.items():
+            if isinstance(values, Mapping) and isinstance(parent.get(sec), Mapping):
+                parent[sec] = {**parent[sec], **values}
+            else:
+                parent[sec] = values
+        data = parent
+    return data, source, name
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """``"section.key=value"`` -> (section, key, value); value in TOML syntax, else a string."""
+    if "=" not in text:
+        raise ConfigError(f"override {text!r}: expected section.key=value")
+    lhs, rhs = text.split("=", 1)
+    parts = lhs.strip().split(".")
+    if len(parts) != 2 or not all(parts):
+        raise ConfigError(f"override {text!r}: expected section.key=value")
+    rhs = rhs.strip()
+    try:
+        value = tomllib.loads(f"v = {rhs}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = rhs
+    return parts[0], parts[1], value
+
+
+def load_profile(name_or_path: str | os.PathLike = "phone", overrides: Iterable[str] = ()) -> VOConfig:
+    """Load a shipped profile by name (``"phone"``) or a TOML file by path, apply overrides."""
+    data, source, name = _read_profile(name_or_path)
+    for ov in overrides:
+        sec, key, value = parse_override(ov)
+        data.setdefault(sec, {})
+        if not isinstance(data[sec], dict):
+            raise ConfigError(f"override {ov!r}: unknown section [{sec}]")
+        data[sec][key] = value
+    return build_config(data, source=source, name=name)

@@ -1,0 +1,1 @@
+"""Semi-dense per-pixel inverse-depth filter (numba kernels + DepthMap + Mapper)."""

@@ -1,0 +1,38 @@
+"""Mapping parameters (per-pixel inverse-depth filter). Values from ALGORITHM_NOTES.md, made fields."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..config_fields import param
+
+
+@dataclass(frozen=True)
+class MappingConfig:
+    """Semi-dense inverse-depth filter at the mapping resolution."""
+    min_grad: float = param(5.0, "minimum (3x3 max-filtered) gradient magnitude for a hypothesis", 0.0, 255.0)
+    min_epl_length: float = param(1.0, "skip stereo when the epipolar line is shorter than this (px)", 0.0, 100.0)
+    min_epl_grad_sq: float = param(4.0, "skip when the squared gradient along the epipolar line is below this", 0.0, 1e5)
+    min_epl_angle_cos: float = param(0.3, "skip when |cos(angle(gradient, epipolar line))| is below this", 0.0, 1.0)
+    min_depth: float = param(0.05, "nearest depth searched without a prior (map units)", 1e-4, 100.0)
+    max_epl_search: float = param(30.0, "longest searched epipolar segment (px)", 3.0, 1000.0)
+    min_epl_search: float = param(3.0, "shortest searched epipolar segment (px)", 0.5, 100.0)
+    ssd_max: float = param(1300.0, "match threshold on the 5-sample SSD (4x before refinement)", 0.0, 1e7)
+    ssd_grad_factor: float = param(20.0, "after refinement reject when best > ssd_max + this*sqrt(grad along line)", 0.0, 1e4)
+    ambiguity_factor: float = param(1.5, "reject when the second best SSD is within this factor of the best", 1.0, 100.0)
+    min_scale: float = param(0.7, "reject matches with an epipolar scale change below this", 0.01, 1.0)
+    max_scale: float = param(1.4, "reject matches with an epipolar scale change above this", 1.0, 100.0)
+    subpixel: bool = param(True, "sub-pixel refinement of the match")
+    sigma_i: float = param(4.0, "image noise std in grey levels for the photometric error", 0.01, 100.0)
+    max_var: float = param(0.25, "largest variance of a new or kept hypothesis (idepth units^2)", 1e-6, 100.0)
+    prediction_noise: float = param(1.01, "prior variance inflation before fusion", 1.0, 10.0)
+    fail_var_inflation: float = param(1.1, "variance inflation after an inconsistent observation", 1.0, 10.0)
+    propagation_sigma: float = param(0.0, "sigma_p^2 added to the variance on propagation", 0.0, 1.0)
+    border: float = param(3.0, "drop propagated hypotheses this close to the border (px)", 0.0, 50.0)
+    init_var: float = param(0.125, "variance of random initialisation and hole filling", 1e-6, 10.0)
+    init_validity: float = param(20.0, "validity of initialised hypotheses", 0.0, 1000.0)
+    depth_init_var: float = param(1e-4, "variance of hypotheses from a depth image", 1e-9, 10.0)
+    reg_validity_sum: float = param(24.0, "regularisation keeps a pixel when its neighbours' validity sum reaches this", 0.0, 1e4)
+    fill_validity_sum: float = param(30.0, "hole filling threshold on the 5x5 validity sum", 0.0, 1e4)
+    budget_ms: float = param(0.0, "time budget per mapping iteration; limits stereo updates when > 0", 0.0, 10000.0)
+    buffer_size: int = param(12, "past frames kept as stereo references", 1, 200)
+    normalize_scale: bool = param(False, "rescale the map so that the mean inverse depth is 1 (monocular)")
