@@ -1,0 +1,115 @@
+"""JIT warm-up: compile (and cache on disk) every numba kernel of the project once.
+
+Owns :data:`KERNEL_MODULES` (the kernel modules, each exposing ``warmup() -> None`` that calls
+its kernels once on tiny inputs) and :func:`warmup`, which imports each module, calls its
+``warmup()`` and reports the time per module. Modules that do not exist (not written yet, or an
+optional extra not installed) are skipped with a note rather than failing.
+
+With ``cache=True`` kernels, the first process on a machine pays the compilation (seconds per
+kernel, worse on an ARM board); later processes load the machine code from numba's cache
+(``__pycache__`` beside the sources, or ``NUMBA_CACHE_DIR``). The cache is tied to the CPU
+model, so run ``lite-vo warmup`` once on the target board after installing.
+
+Imports: the standard library only at module level. The kernel modules are imported by name
+(``importlib``) when :func:`warmup` runs; ``ar_demo._kernels`` is optional and only used when
+importable (``lite_vo`` has no code dependency on ``ar_demo``).
+"""
+from __future__ import annotations
+
+import importlib
+import time
+from dataclasses import asdict, dataclass
+from typing import Callable, Iterable
+
+#: Kernel modules in warm-up order; each exposes ``warmup() -> None``.
+KERNEL_MODULES: tuple[str, ...] = (
+    "lite_vo.image",
+    "lite_vo.tracking._kernels",
+    "lite_vo.mapping._kernels",
+    "lite_vo.synth._kernels",
+    "ar_demo._kernels",
+)
+
+#: Modules whose absence (or missing dependencies) is normal: they belong to optional extras.
+OPTIONAL_MODULES: frozenset[str] = frozenset({"ar_demo._kernels"})
+
+
+@dataclass(frozen=True)
+class ModuleWarmup:
+    """Outcome of warming up one module.
+
+    ``status``: ``"ok"`` (warm-up ran), ``"missing"`` (module not found, skipped),
+    ``"no_warmup"`` (module has no ``warmup()``), ``"error"`` (import or warm-up raised).
+    ``import_s`` and ``compile_s`` are wall-clock seconds (``compile_s`` is the ``warmup()`` call:
+    compilation on a cold cache, loading from the cache on a warm one).
+    """
+    module: str
+    status: str
+    import_s: float = 0.0
+    compile_s: float = 0.0
+    message: str = ""
+
+    @property
+    def total_s(self) -> float:
+        return self.import_s + self.compile_s
+
+    def to_dict(self) -> dict:
+        return asdict(self) | {"total_s": self.total_s}
+
+
+def _is_missing(err: ModuleNotFoundError, module: str) -> bool:
+    """True when ``err`` says ``module`` itself (or one of its parent packages) does not exist."""
+    if err.name is None:
+        return False
+    return module == err.name or module.startswith(err.name + ".")
+
+
+def warmup_module(module: str) -> ModuleWarmup:
+    """Import ``module`` and call its ``warmup()``; never raises for a missing or broken module."""
+    t0 = time.perf_counter()
+    try:
+        mod = importlib.import_module(module)
+    except ModuleNotFoundError as err:
+        if _is_missing(err, module):
+            return ModuleWarmup(module, "missing", message="module not found (skipped)")
+        if module in OPTIONAL_MODULES:
+            return ModuleWarmup(module, "missing",
+                                message=f"optional dependency {err.name!r} not installed (skipped)")
+        return ModuleWarmup(module, "error", time.perf_counter() - t0,
+                            message=f"import failed: {type(err).__name__}: {err}")
+    except Exception as err:  # noqa: BLE001 - reported, the other modules still warm up
+        return ModuleWarmup(module, "error", time.perf_counter() - t0,
+                            message=f"import failed: {type(err).__name__}: {err}")
+    import_s = time.perf_counter() - t0
+    fn = getattr(mod, "warmup", None)
+    if not callable(fn):
+        return ModuleWarmup(module, "no_warmup", import_s, message="module has no warmup() (skipped)")
+    t1 = time.perf_counter()
+    try:
+        fn()
+    except Exception as err:  # noqa: BLE001
+        return ModuleWarmup(module, "error", import_s, time.perf_counter() - t1,
+                            message=f"warmup() failed: {type(err).__name__}: {err}")
+    return ModuleWarmup(module, "ok", import_s, time.perf_counter() - t1)
+
+
+def warmup(modules: Iterable[str] = KERNEL_MODULES,
+           on_result: Callable[[ModuleWarmup], None] | None = None) -> list[ModuleWarmup]:
+    """Warm up every module in ``modules`` (default: all kernel modules), in order.
+
+    ``on_result`` is called after each module (e.g. to print progress). Returns one
+    :class:`ModuleWarmup` per module; check ``status == "error"`` for failures.
+    """
+    results = []
+    for module in modules:
+        res = warmup_module(module)
+        results.append(res)
+        if on_result is not None:
+            on_result(res)
+    return results
+
+
+def numba_cache_location() -> str:
+    """Where numba writes its cache: ``NUMBA_CACHE_DIR`` or ``__pycache__`` beside the sources."""
+    import os
+    return os.environ.get("NUMBA_CACHE_DIR") or "__pycache__ folders beside the kernel sources"
