@@ -1,0 +1,108 @@
+"""AR demo parameters (world model, physics, rendering, video) as one frozen dataclass.
+
+Every magic number of the AR demo lives here with a doc line and a valid range. The VO itself is
+configured by ``lite_vo`` profiles; this section is separate because ``lite_vo`` may not know about
+``ar_demo``. Overrides use the same ``key=value`` TOML syntax as the VO profiles (``ar.key=value``).
+
+Imports: standard library and ``lite_vo.config_fields`` only.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, fields
+from typing import Any, Iterable
+
+from lite_vo.config_fields import param
+from lite_vo.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class ARConfig:
+    """World model (ground plane, in-painting, mesh), physics, autopilot, rendering, video."""
+    # --- ground plane (5.3.2)
+    acc_lowpass_alpha: float = param(0.05, "exponential low-pass factor per accelerometer sample (gravity direction)", 1e-4, 1.0)
+    ground_min_support: int = param(150, "minimum number of depth samples supporting the ground height", 3, 10**7)
+    ground_band_rel: float = param(0.004, "height band of the supporting samples, relative to the median scene depth", 1e-5, 0.5)
+    ground_max_dist_rel: float = param(2.0, "use map points closer to the camera than this times their median distance", 0.1, 1e6)
+    ground_max_points: int = param(20000, "map points used for the ground plane (random subset beyond this)", 100, 10**7)
+    ransac_iterations: int = param(300, "fallback without IMU: RANSAC plane hypotheses", 1, 100000)
+    ransac_max_angle_deg: float = param(40.0, "fallback: largest angle between a plane normal and the first camera's up", 1.0, 90.0)
+    ransac_inlier_rel: float = param(0.01, "fallback: RANSAC inlier distance relative to the median scene depth", 1e-5, 0.5)
+    # --- variational in-painting (eq. 5.6)
+    grid_height: int = param(15, "rows of the in-painted inverse-depth grid (paper: 15)", 2, 480)
+    grid_width: int = param(20, "columns of the in-painted inverse-depth grid (paper: 20)", 2, 640)
+    alpha: float = param(0.02, "weight of the Huber regulariser (in normalised inverse-depth units)", 0.0, 1e6)
+    huber_delta: float = param(0.05, "Huber threshold on the normalised inverse-depth gradient per grid cell", 1e-6, 1e3)
+    ground_var: float = param(0.05, "V_pi: variance of the ground-plane prior (normalised inverse depth^2)", 1e-8, 1e6)
+    min_var: float = param(1e-4, "variance floor of the data term (normalised inverse depth^2)", 1e-12, 1.0)
+    solver_iterations: int = param(400, "maximum preconditioned gradient-descent iterations", 1, 100000)
+    solver_tol: float = param(1e-9, "stop when the relative energy decrease of an iteration is below this", 0.0, 1.0)
+    # --- collision mesh
+    max_depth_ratio: float = param(1.6, "drop triangles whose corner depths differ by more than this factor (0 disables)", 0.0, 100.0)
+    mesh_idepth_floor_rel: float = param(0.05, "clamp in-painted inverse depth below this fraction of the median (far plane)", 1e-4, 1.0)
+    ground_extent_rel: float = param(20.0, "half size of the infinite-ground safety plane, relative to the car length (0: none)", 0.0, 1e4)
+    # --- physics
+    metric: bool = param(False, "true: world units are metres (gt poses, metric VO); false: monocular, arbitrary scale")
+    car_length_m: float = param(0.5, "metric runs: car length in metres (the pybullet racecar is about 0.5 m)", 0.01, 100.0)
+    car_length_rel_depth: float = param(0.12, "monocular runs: car length relative to the median scene depth", 1e-3, 10.0)
+    physics_hz: float = param(240.0, "physics time step rate (Hz)", 30.0, 2000.0)
+    time_scale: float = param(1.0, "simulated seconds per video second", 0.01, 100.0)
+    world_update_every: int = param(5, "rebuild the world model every k-th frame (asynchronously, Fig. 5.7)", 1, 1000)
+    async_world: bool = param(True, "build world models in a worker thread (false: synchronous, deterministic)")
+    spawn_height: float = param(0.15, "drop the car from this height above the ground (car lengths)", 0.0, 10.0)
+    # --- autopilot
+    drive_speed: float = param(12.0, "target wheel speed when driving (rad/s)", 0.0, 200.0)
+    drive_force: float = param(8.0, "maximum wheel motor force (N)", 0.0, 1000.0)
+    max_steer: float = param(0.5, "largest steering angle (rad)", 0.0, 1.0)
+    blocked_speed: float = param(0.08, "the car counts as blocked below this speed (car lengths/s) while driving", 0.0, 100.0)
+    blocked_time_s: float = param(0.6, "reverse after being blocked this long (s)", 0.01, 100.0)
+    reverse_time_s: float = param(1.0, "reverse for this long (s)", 0.01, 100.0)
+    wander_period_s: float = param(4.0, "period of the gentle steering wander (s)", 0.1, 1000.0)
+    # --- rendering / video
+    video_fps: float = param(0.0, "video frame rate (0: from the sequence timestamps)", 0.0, 240.0)
+    panels: bool = param(False, "add side panels: semi-dense depth (Fig. 5.3) and collision mesh (Fig. 5.1)")
+    panel_view_elevation_deg: float = param(35.0, "mesh panel: elevation of the virtual viewpoint above the camera", -89.0, 89.0)
+    panel_view_azimuth_deg: float = param(30.0, "mesh panel: rotation of the viewpoint about the up axis", -180.0, 180.0)
+    near_rel: float = param(0.01, "near clipping plane relative to the median scene depth", 1e-6, 1.0)
+    far_rel: float = param(50.0, "far clipping plane relative to the median scene depth", 1.0, 1e6)
+    # --- semi-dense map from ground-truth depth (poses='gt' and tests)
+    gt_map_width: int = param(320, "width of the semi-dense map made from ground-truth depth", 16, 4096)
+    gt_min_grad: float = param(8.0, "keep ground-truth depth pixels whose image gradient magnitude exceeds this", 0.0, 1000.0)
+    gt_idepth_var: float = param(1e-4, "idepth variance given to ground-truth map pixels (relative to idepth^2)", 1e-12, 10.0)
+
+    def replace(self, **kw) -> "ARConfig":
+        return dataclasses.replace(self, **kw)
+
+
+def ar_config(overrides: Iterable[str] | dict[str, Any] | None = None, **kw) -> ARConfig:
+    """An :class:`ARConfig` with validated overrides (``"key=value"`` strings or a dict)."""
+    from lite_vo.config import _check_value  # validation shared with the VO profiles
+    by_name = {f.name: f for f in fields(ARConfig)}
+    values: dict[str, Any] = {}
+    items: list[tuple[str, Any]] = []
+    if isinstance(overrides, dict):
+        items += list(overrides.items())
+    elif overrides:
+        try:
+            import tomllib
+        except ModuleNotFoundError:  # pragma: no cover
+            import tomli as tomllib  # type: ignore[no-redef]
+        for text in overrides:
+            if "=" not in text:
+                raise ConfigError(f"AR override {text!r}: expected key=value")
+            key, raw = (s.strip() for s in text.split("=", 1))
+            key = key[3:] if key.startswith("ar.") else key
+            try:
+                value = tomllib.loads(f"v = {raw}")["v"]
+            except Exception:
+                value = raw
+            items.append((key, value))
+    items += list(kw.items())
+    for key, value in items:
+        if key not in by_name:
+            raise ConfigError(f"unknown AR setting {key!r}")
+        f = by_name[key]
+        if f.type in (float, "float") and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        values[key] = _check_value(f"ar.{key}", f, value)
+    return ARConfig(**values)
