@@ -52,3 +52,368 @@ class PinholeIntrinsics:
         v = np.asarray(v, dtype=np.float64)
         z = 1.0 / np.asarray(idepth, dtype=np.float64)
         return np.stack([(u - self.cx) / self.fx * z, (v - self.cy) / self.fy * z, z], axis=-1)
+
+
+# --------------------------------------------------------------------------------------------
+# Distortion models and the native (as recorded) camera
+# --------------------------------------------------------------------------------------------
+
+DISTORTION_MODELS = ("none", "radtan", "fov")
+
+
+def _distort_radtan(x: np.ndarray, y: np.ndarray, k: tuple) -> tuple[np.ndarray, np.ndarray]:
+    k1, k2, p1, p2, k3 = k
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return xd, yd
+
+
+def _undistort_radtan(xd: np.ndarray, yd: np.ndarray, k: tuple, iterations: int = 30
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Newton's method on the 2x2 system; points that do not converge become NaN."""
+    k1, k2, p1, p2, k3 = k
+    x, y = xd.copy(), yd.copy()
+    for _ in range(iterations):
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        drad = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
+        fx_ = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd
+        fy_ = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - yd
+        j00 = radial + 2.0 * x * x * drad + 2.0 * p1 * y + 6.0 * p2 * x
+        j01 = 2.0 * x * y * drad + 2.0 * p1 * x + 2.0 * p2 * y
+        j10 = 2.0 * x * y * drad + 2.0 * p1 * x + 2.0 * p2 * y
+        j11 = radial + 2.0 * y * y * drad + 6.0 * p1 * y + 2.0 * p2 * x
+        det = j00 * j11 - j01 * j10
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dx = (j11 * fx_ - j01 * fy_) / det
+            dy = (-j10 * fx_ + j00 * fy_) / det
+        x = x - dx
+        y = y - dy
+    with np.errstate(invalid="ignore", over="ignore"):
+        xr, yr = _distort_radtan(x, y, k)
+        bad = ~(np.hypot(xr - xd, yr - yd) < 1e-9 * (1.0 + np.hypot(xd, yd)))
+        # a solution beyond the turning point of the radial polynomial is not the physical one
+        r2 = x * x + y * y
+        bad |= ~(1.0 + r2 * (3 * k1 + r2 * (5 * k2 + 7 * k3 * r2)) > 0)
+    x = np.where(bad, np.nan, x)
+    y = np.where(bad, np.nan, y)
+    return x, y
+
+
+def _fov_factor_distort(r_u: np.ndarray, omega: float) -> np.ndarray:
+    t = 2.0 * np.tan(omega / 2.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.arctan(r_u * t) / (omega * r_u)
+    return np.where(r_u > 1e-12, f, t / omega)
+
+
+def _fov_factor_undistort(r_d: np.ndarray, omega: float) -> np.ndarray:
+    t = 2.0 * np.tan(omega / 2.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.tan(r_d * omega) / (t * r_d)
+    f = np.where(r_d > 1e-12, f, omega / t)
+    return np.where(r_d * omega < np.pi / 2, f, np.nan)  # beyond 180 degrees field of view
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A calibrated camera at its native resolution, with lens distortion.
+
+    ``intrinsics`` holds fx, fy, cx, cy (pixels) and the native image size; a point ``(x, y, z)``
+    in the camera frame projects to ``K @ gamma(x / z, y / z)`` (thesis eq. 2.5) where ``gamma`` is
+
+    * ``"none"``: the identity (``params = ()``);
+    * ``"radtan"``: OpenCV radial-tangential, ``params = (k1, k2, p1, p2, k3)`` (eq. 2.10, k4..k6 = 0);
+    * ``"fov"``: the FOV/ATAN model of Devernay and Faugeras, ``params = (omega,)`` (eq. 2.6-2.9),
+      ``r_d = atan(2 r_u tan(omega / 2)) / omega``; omega in radians.
+
+    The pipeline never works on distorted images: :meth:`rectifier` builds remap tables once and
+    turns each frame into an undistorted pinhole image at the working resolution.
+    """
+    intrinsics: PinholeIntrinsics
+    model: str = "none"
+    params: tuple = ()
+
+    def __post_init__(self):
+        if self.model not in DISTORTION_MODELS:
+            raise ValueError(f"unknown distortion model {self.model!r} (known: {', '.join(DISTORTION_MODELS)})")
+        p = tuple(float(v) for v in self.params)
+        if self.model == "radtan":
+            if len(p) == 4:
+                p = p + (0.0,)
+            if len(p) != 5:
+                raise ValueError("radtan distortion needs (k1, k2, p1, p2[, k3])")
+        elif self.model == "fov":
+            if len(p) != 1 or not (0.0 <= p[0] < np.pi):
+                raise ValueError("fov distortion needs (omega,) with 0 <= omega < pi")
+        elif p:
+            raise ValueError("model 'none' takes no distortion parameters")
+        if not all(np.isfinite(p)):
+            raise ValueError("distortion parameters must be finite")
+        i = self.intrinsics
+        if not (i.fx > 0 and i.fy > 0 and i.width > 0 and i.height > 0):
+            raise ValueError("focal lengths and image size must be positive")
+        object.__setattr__(self, "params", p)
+
+    # -- constructors -------------------------------------------------------------------------
+    @classmethod
+    def pinhole(cls, fx, fy, cx, cy, width, height) -> "Camera":
+        return cls(PinholeIntrinsics(float(fx), float(fy), float(cx), float(cy), int(width), int(height)))
+
+    @classmethod
+    def radtan(cls, fx, fy, cx, cy, width, height, k1, k2, p1, p2, k3=0.0) -> "Camera":
+        return cls(PinholeIntrinsics(float(fx), float(fy), float(cx), float(cy), int(width), int(height)),
+                   "radtan", (k1, k2, p1, p2, k3))
+
+    @classmethod
+    def fov(cls, fx, fy, cx, cy, width, height, omega) -> "Camera":
+        return cls(PinholeIntrinsics(float(fx), float(fy), float(cx), float(cy), int(width), int(height)),
+                   "fov", (omega,))
+
+    # -- properties ---------------------------------------------------------------------------
+    @property
+    def width(self) -> int:
+        return self.intrinsics.width
+
+    @property
+    def height(self) -> int:
+        return self.intrinsics.height
+
+    @property
+    def is_distorted(self) -> bool:
+        if self.model == "none":
+            return False
+        return any(v != 0.0 for v in self.params)
+
+    def describe(self) -> str:
+        i = self.intrinsics
+        s = f"{i.width}x{i.height} fx={i.fx:g} fy={i.fy:g} cx={i.cx:g} cy={i.cy:g}"
+        if self.model != "none":
+            s += f" {self.model}(" + ", ".join(f"{v:g}" for v in self.params) + ")"
+        return s
+
+    # -- distortion on normalised coordinates -------------------------------------------------
+    def distort(self, xy: np.ndarray) -> np.ndarray:
+        """Distorted normalised coordinates (..., 2) of undistorted ones (``gamma``)."""
+        xy = np.asarray(xy, dtype=np.float64)
+        x, y = xy[..., 0], xy[..., 1]
+        if not self.is_distorted:
+            return xy.copy()
+        if self.model == "radtan":
+            xd, yd = _distort_radtan(x, y, self.params)
+        else:
+            f = _fov_factor_distort(np.hypot(x, y), self.params[0])
+            xd, yd = x * f, y * f
+        return np.stack([xd, yd], axis=-1)
+
+    def undistort(self, xy_distorted: np.ndarray) -> np.ndarray:
+        """Undistorted normalised coordinates (..., 2) of distorted ones (``gamma^-1``).
+
+        Closed form for FOV, Newton iterations for radtan; NaN where there is no (physical)
+        solution (e.g. beyond the turning point of the radial polynomial)."""
+        xy = np.asarray(xy_distorted, dtype=np.float64)
+        x, y = xy[..., 0], xy[..., 1]
+        if not self.is_distorted:
+            return xy.copy()
+        if self.model == "radtan":
+            xu, yu = _undistort_radtan(x, y, self.params)
+        else:
+            f = _fov_factor_undistort(np.hypot(x, y), self.params[0])
+            xu, yu = x * f, y * f
+        return np.stack([xu, yu], axis=-1)
+
+    # -- pixels ---------------------------------------------------------------------------------
+    def project(self, points_cam: np.ndarray) -> np.ndarray:
+        """Distorted pixel coordinates (N, 2) of camera-frame points (N, 3) with z > 0."""
+        p = np.asarray(points_cam, dtype=np.float64)
+        d = self.distort(p[..., :2] / p[..., 2:3])
+        i = self.intrinsics
+        return np.stack([i.fx * d[..., 0] + i.cx, i.fy * d[..., 1] + i.cy], axis=-1)
+
+    def unproject(self, uv: np.ndarray) -> np.ndarray:
+        """Undistorted normalised coordinates (N, 2) (ray ``(x, y, 1)``) of distorted pixels (N, 2)."""
+        uv = np.asarray(uv, dtype=np.float64)
+        i = self.intrinsics
+        xd = np.stack([(uv[..., 0] - i.cx) / i.fx, (uv[..., 1] - i.cy) / i.fy], axis=-1)
+        return self.undistort(xd)
+
+    def rectified_intrinsics(self, map_width: int, multiple_of: int = 16) -> PinholeIntrinsics:
+        """The pinhole camera of :meth:`rectifier` (see there) without building the maps."""
+        return _rectified_pinhole(self, map_width, multiple_of)[0]
+
+    def rectifier(self, map_width: int, multiple_of: int = 16) -> "Rectifier":
+        """Undistort + resize to ``map_width`` keeping the aspect ratio, with an explicit centre crop
+        so both output dimensions are multiples of ``multiple_of``. See :class:`Rectifier`."""
+        return Rectifier(self, map_width, multiple_of)
+
+
+def _valid_normalised_rect(cam: Camera, samples: int = 400) -> tuple[float, float, float, float]:
+    """Largest axis-aligned rectangle (x0, x1, y0, y1) of undistorted normalised coordinates
+    whose every point distorts into the native image (pixel-area extent ``[-0.5, W - 0.5]``)."""
+    i = cam.intrinsics
+    W, H = i.width, i.height
+    if not cam.is_distorted:
+        return ((-0.5 - i.cx) / i.fx, (W - 0.5 - i.cx) / i.fx, (-0.5 - i.cy) / i.fy, (H - 0.5 - i.cy) / i.fy)
+    us = np.linspace(-0.5, W - 0.5, samples)
+    vs = np.linspace(-0.5, H - 0.5, samples)
+    left = cam.unproject(np.stack([np.full_like(vs, -0.5), vs], -1))
+    right = cam.unproject(np.stack([np.full_like(vs, W - 0.5), vs], -1))
+    top = cam.unproject(np.stack([us, np.full_like(us, -0.5)], -1))
+    bottom = cam.unproject(np.stack([us, np.full_like(us, H - 0.5)], -1))
+    x0, x1 = np.nanmax(left[:, 0]), np.nanmin(right[:, 0])
+    y0, y1 = np.nanmax(top[:, 1]), np.nanmin(bottom[:, 1])
+    if not (np.isfinite([x0, x1, y0, y1]).all() and x1 > x0 and y1 > y0):
+        raise ValueError(f"camera {cam.describe()}: cannot find an undistorted image region")
+    # verify on a grid (edges dense, interior coarse); shrink about the centre until inside
+    mx, my = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    hx, hy = 0.5 * (x1 - x0), 0.5 * (y1 - y0)
+    g = np.linspace(-1.0, 1.0, 41)
+    e = np.linspace(-1.0, 1.0, samples)
+    pts = np.concatenate([
+        np.stack(np.meshgrid(g, g), -1).reshape(-1, 2),
+        np.stack([e, -np.ones_like(e)], -1), np.stack([e, np.ones_like(e)], -1),
+        np.stack([-np.ones_like(e), e], -1), np.stack([np.ones_like(e), e], -1)])
+    tol = 1e-6
+    for _ in range(200):
+        xy = np.stack([mx + hx * pts[:, 0], my + hy * pts[:, 1]], -1)
+        uv = cam.project(np.concatenate([xy, np.ones((len(xy), 1))], 1))
+        ok = np.all(np.isfinite(uv)) and uv[:, 0].min() >= -0.5 - tol and uv[:, 0].max() <= W - 0.5 + tol \
+            and uv[:, 1].min() >= -0.5 - tol and uv[:, 1].max() <= H - 0.5 + tol
+        if ok:
+            break
+        hx *= 0.995
+        hy *= 0.995
+    else:  # pragma: no cover - pathological calibration
+        raise ValueError(f"camera {cam.describe()}: cannot find an undistorted image region")
+    return mx - hx, mx + hx, my - hy, my + hy
+
+
+def _rectified_pinhole(cam: Camera, map_width: int, multiple_of: int):
+    """(output intrinsics, uncropped size (w0, h0), supersampling factor k)."""
+    i = cam.intrinsics
+    map_width = int(map_width)
+    multiple_of = int(multiple_of)
+    if multiple_of < 1:
+        raise ValueError("multiple_of must be >= 1")
+    if map_width < multiple_of or map_width < 8:
+        raise ValueError(f"map_width {map_width} is too small (multiple_of={multiple_of})")
+    w0 = map_width
+    h0 = max(1, int(round(map_width * i.height / i.width)))
+    w = (w0 // multiple_of) * multiple_of
+    h = (h0 // multiple_of) * multiple_of
+    if h < 1:
+        raise ValueError(f"map_width {map_width}: the output height {h0} is smaller than multiple_of={multiple_of}")
+    x0, x1, y0, y1 = _valid_normalised_rect(cam)
+    # keep the native pixel aspect (fx/fy); the uncropped w0 x h0 output must fit into the rectangle
+    s = max(w0 / ((x1 - x0) * i.fx), h0 / ((y1 - y0) * i.fy))
+    fx, fy = i.fx * s, i.fy * s
+    # the uncropped image's pixel-area extent is centred on the rectangle's centre
+    cx0 = (w0 - 1) / 2.0 - fx * 0.5 * (x0 + x1)
+    cy0 = (h0 - 1) / 2.0 - fy * 0.5 * (y0 + y1)
+    cx = cx0 - 0.5 * (w0 - w)
+    cy = cy0 - 0.5 * (h0 - h)
+    k = max(1, int(round(i.fx / fx)))
+    return PinholeIntrinsics(float(fx), float(fy), float(cx), float(cy), w, h), (w0, h0), k
+
+
+class Rectifier:
+    """Turns native (distorted) frames into undistorted pinhole images at the working resolution.
+
+    Geometry (computed once, in the constructor):
+
+    * the output size is ``map_width`` x ``round(map_width * H / W)`` (the native aspect ratio),
+      then **centre-cropped** to the largest multiples of ``multiple_of`` (e.g. KITTI 1226x370 at
+      ``map_width=320`` -> 320x97 -> 320x96); the crop shifts cx, cy by half the removed pixels;
+    * the output pinhole keeps the native pixel aspect ``fx / fy`` and is chosen so the whole
+      output image lies inside the area the native image covers after undistortion: there is
+      **no black or undefined border** (a little of the field of view near the corners or edges
+      is given up instead; undistorted cameras lose nothing but the crop);
+    * images are remapped (bilinear, ``cv2.remap`` with tables built once) to ``k`` times the output
+      size, where ``k ~ native fx / output fx``, then box-averaged by ``k`` (``cv2.INTER_AREA``)
+      to avoid aliasing when downsampling. When that remap is the identity it is skipped.
+
+    ``intrinsics`` is the output :class:`PinholeIntrinsics`; use ``.level(l)`` for pyramid levels.
+    Instances are immutable after construction and safe to share between threads.
+    """
+
+    def __init__(self, camera: Camera, map_width: int, multiple_of: int = 16):
+        import cv2
+        self.camera = camera
+        self.multiple_of = int(multiple_of)
+        self.intrinsics, self.uncropped_size, self.factor = _rectified_pinhole(camera, map_width, multiple_of)
+        out, k = self.intrinsics, self.factor
+        # intermediate (k times supersampled) pinhole whose k x k box average is `out`
+        mid = PinholeIntrinsics(out.fx * k, out.fy * k, (out.cx + 0.5) * k - 0.5, (out.cy + 0.5) * k - 0.5,
+                                out.width * k, out.height * k)
+        self._mid = mid
+        mx, my = self._source_coords(mid)
+        nat = camera.intrinsics
+        self._identity = (mid.width == nat.width and mid.height == nat.height
+                          and np.allclose(mx, np.arange(nat.width)[None, :], atol=1e-6)
+                          and np.allclose(my, np.arange(nat.height)[:, None], atol=1e-6))
+        if self._identity:
+            self._map1 = self._map2 = None
+        else:
+            self._map1, self._map2 = cv2.convertMaps(mx.astype(np.float32), my.astype(np.float32), cv2.CV_16SC2)
+        # depth: nearest valid native pixel around the source location of each output pixel centre
+        dx, dy = self._source_coords(out)
+        self._depth_base = (np.clip(np.rint(dx), 0, nat.width - 1).astype(np.int32),
+                            np.clip(np.rint(dy), 0, nat.height - 1).astype(np.int32))
+        r = max(0, int(np.ceil((nat.fx / out.fx) / 2.0 - 1e-9)))
+        offs = [(ox, oy) for oy in range(-r, r + 1) for ox in range(-r, r + 1) if ox * ox + oy * oy <= r * r + 1e-9]
+        self._depth_offsets = sorted(offs, key=lambda o: (o[0] ** 2 + o[1] ** 2, o[1], o[0]))
+
+    def _source_coords(self, pin: PinholeIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+        """Native (distorted) pixel coordinates of every pixel centre of pinhole image ``pin``."""
+        u, v = np.meshgrid(np.arange(pin.width, dtype=np.float64), np.arange(pin.height, dtype=np.float64))
+        xy = np.stack([(u - pin.cx) / pin.fx, (v - pin.cy) / pin.fy], -1)
+        d = self.camera.distort(xy)
+        nat = self.camera.intrinsics
+        return nat.fx * d[..., 0] + nat.cx, nat.fy * d[..., 1] + nat.cy
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """Output ``(width, height)``."""
+        return self.intrinsics.width, self.intrinsics.height
+
+    def _check(self, image: np.ndarray, what: str) -> None:
+        nat = self.camera.intrinsics
+        if image.ndim != 2 or image.shape != (nat.height, nat.width):
+            from .errors import InputError
+            raise InputError(f"{what} of shape {image.shape} does not match the camera's "
+                             f"{nat.width}x{nat.height} (expected a {nat.height}x{nat.width} grey image)")
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        """Rectified, resized float32 image (0..255) of a native grey image (uint8 or float)."""
+        import cv2
+        image = np.asarray(image)
+        self._check(image, "image")
+        img = image.astype(np.float32, copy=False)
+        if not self._identity:
+            img = cv2.remap(img, self._map1, self._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if self.factor > 1:
+            img = cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
+        return np.ascontiguousarray(img, dtype=np.float32)
+
+    def depth(self, depth_m: np.ndarray) -> np.ndarray:
+        """Depth image (metres, 0 or NaN = invalid) in the output geometry: for each output pixel the
+        valid native depth nearest to its source location within the pixel's footprint; depths are
+        never blended (no mixed values across depth edges). 0 where none is valid."""
+        d = np.asarray(depth_m, dtype=np.float32)
+        self._check(d, "depth image")
+        nat = self.camera.intrinsics
+        bx, by = self._depth_base
+        out = np.zeros(bx.shape, dtype=np.float32)
+        todo = np.ones(bx.shape, dtype=bool)
+        for ox, oy in self._depth_offsets:
+            xs = np.clip(bx + ox, 0, nat.width - 1)
+            ys = np.clip(by + oy, 0, nat.height - 1)
+            cand = d[ys, xs]
+            take = todo & (cand > 0) & np.isfinite(cand)
+            out[take] = cand[take]
+            todo &= ~take
+            if not todo.any():
+                break
+        return out

@@ -1,0 +1,526 @@
+"""Sequence readers: TUM RGB-D folders, EuRoC ``mav0`` folders, image folders, video files and
+live cameras, all behind :func:`open_sequence`.
+
+Index files (lists, CSVs, calibrations, ground truth, accelerometer) are read and validated when
+the sequence is opened; images are read lazily while iterating. Every problem the user can fix is
+an :class:`~lite_vo.errors.InputError` with a one-line message naming the file (and line).
+
+Imports numpy, cv2 (lazily), ``lite_vo.camera``, ``lite_vo.geometry`` and the io helpers only.
+"""
+from __future__ import annotations
+
+import os
+import re
+import time
+from pathlib import Path
+from typing import Iterator, Optional, Union
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import InputError
+from ..geometry import make_pose, pose_from_tum, rotmat_from_quat_xyzw
+from ._text import check_increasing, parse_table, read_lines
+from .calib import (TUM_DEPTH_SCALE, Calibration, freiburg_camera, freiburg_number, read_calib_txt,
+                    read_euroc_camera_yaml, parse_simple_yaml, yaml_matrix4)
+from .trajectory import parse_tum_rows
+from .types import Accelerometer, Frame, Trajectory
+
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
+VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
+DEFAULT_DEPTH_MAX_DT = 0.02
+DEFAULT_FPS = 30.0
+
+
+# ------------------------------------------------------------------------------------------------
+# image loading
+# ------------------------------------------------------------------------------------------------
+
+def _imread_grey(path: Path, camera: Camera) -> np.ndarray:
+    import cv2
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        if not path.is_file():
+            raise InputError(f"{path}: image not found")
+        raise InputError(f"{path}: cannot read image (corrupt or unsupported format)")
+    if img.ndim == 3:
+        if img.shape[2] == 4:
+            img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
+        elif img.shape[2] == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        else:
+            img = img[..., 0]
+    if img.dtype == np.uint16:
+        img = (img.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        raise InputError(f"{path}: unsupported image type {img.dtype} (expected 8-bit grey or colour)")
+    _check_size(path, img, camera, "image")
+    return img
+
+
+def _check_size(path, img: np.ndarray, camera: Camera, what: str) -> None:
+    h, w = img.shape[:2]
+    if (w, h) != (camera.width, camera.height):
+        raise InputError(f"{path}: {what} is {w}x{h} but the calibration says {camera.width}x{camera.height}")
+
+
+def _imread_depth(path: Path, camera: Camera, depth_scale: float) -> np.ndarray:
+    import cv2
+    d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if d is None:
+        if not path.is_file():
+            raise InputError(f"{path}: depth image not found")
+        raise InputError(f"{path}: cannot read depth image (corrupt or unsupported format)")
+    if d.ndim != 2 or d.dtype not in (np.uint16, np.float32):
+        raise InputError(f"{path}: depth image must be single-channel 16-bit (or float32), got "
+                         f"{d.dtype} with shape {d.shape}")
+    _check_size(path, d, camera, "depth image")
+    out = d.astype(np.float32) / np.float32(depth_scale)
+    out[~np.isfinite(out) | (out < 0)] = 0.0
+    return out
+
+
+def _natural_key(name: str):
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+# ------------------------------------------------------------------------------------------------
+# sequences
+# ------------------------------------------------------------------------------------------------
+
+class Sequence:
+    """Base class: ``name``, ``camera`` (native, with distortion), ``has_depth``, ``groundtruth``,
+    ``accelerometer``, ``len()``, iteration yielding :class:`Frame` (images read lazily)."""
+
+    kind = "sequence"
+
+    def __init__(self, name: str, camera: Camera, path: Optional[Path] = None):
+        self.name = name
+        self.camera = camera
+        self.path = path
+        self.has_depth = False
+        self.groundtruth: Optional[Trajectory] = None
+        self.accelerometer: Optional[Accelerometer] = None
+        self.depth_scale: Optional[float] = None
+
+    def __len__(self) -> int:  # pragma: no cover - overridden
+        raise TypeError(f"{self.kind} sequence has no length")
+
+    def __iter__(self) -> Iterator[Frame]:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release resources (video files, cameras); file sequences hold none."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __repr__(self) -> str:
+        try:
+            n = f"{len(self)} frames"
+        except TypeError:
+            n = "live"
+        extras = [x for x, on in (("depth", self.has_depth), ("groundtruth", self.groundtruth is not None),
+                                  ("accelerometer", self.accelerometer is not None)) if on]
+        return (f"<{type(self).__name__} {self.name!r}: {n}, camera {self.camera.describe()}"
+                f"{', ' + ', '.join(extras) if extras else ''}>")
+
+
+class FileSequence(Sequence):
+    """A sequence of image files with known timestamps (TUM, EuRoC, image folders)."""
+
+    def __init__(self, name: str, camera: Camera, path: Path, timestamps: np.ndarray, image_paths: list,
+                 depth_paths: Optional[list] = None, depth_scale: Optional[float] = None):
+        super().__init__(name, camera, path)
+        self.timestamps = np.asarray(timestamps, dtype=np.float64)
+        self.timestamps.setflags(write=False)
+        self.image_paths = list(image_paths)
+        self.depth_paths = depth_paths
+        self.depth_scale = depth_scale
+        self.has_depth = depth_paths is not None and any(p is not None for p in depth_paths)
+
+    def __len__(self) -> int:
+        return len(self.image_paths)
+
+    def frame(self, i: int) -> Frame:
+        """Frame ``i`` (random access; reads the files now)."""
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError(f"frame {i} out of range for {n} frames")
+        i %= n
+        img = _imread_grey(self.image_paths[i], self.camera)
+        depth = None
+        if self.depth_paths is not None and self.depth_paths[i] is not None:
+            depth = _imread_depth(self.depth_paths[i], self.camera, self.depth_scale or TUM_DEPTH_SCALE)
+        return Frame(i, float(self.timestamps[i]), img, depth)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self.frame(i)
+
+
+class TumSequence(FileSequence):
+    kind = "tum"
+
+
+class EurocSequence(FileSequence):
+    kind = "euroc"
+
+
+class ImageFolderSequence(FileSequence):
+    kind = "images"
+
+
+class VideoSequence(Sequence):
+    """Frames of a video file (timestamps ``index / fps``)."""
+
+    kind = "video"
+
+    def __init__(self, path: Path, camera: Camera, fps: Optional[float] = None):
+        import cv2
+        super().__init__(path.stem, camera, path)
+        cap = cv2.VideoCapture(str(path))
+        if not cap.isOpened():
+            raise InputError(f"{path}: cannot open video (unsupported codec or not a video)")
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        vfps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        ok, img = cap.read()
+        cap.release()
+        if not ok or img is None:
+            raise InputError(f"{path}: video contains no readable frame")
+        _check_size(path, img, camera, "video frame")
+        self.fps = float(fps) if fps else (vfps if vfps > 0 else DEFAULT_FPS)
+        self._count = max(n, 1)
+        self._cap = None
+
+    def __len__(self) -> int:
+        return self._count
+
+    def __iter__(self) -> Iterator[Frame]:
+        import cv2
+        cap = cv2.VideoCapture(str(self.path))
+        self._cap = cap
+        try:
+            i = 0
+            while True:
+                ok, img = cap.read()
+                if not ok or img is None:
+                    break
+                if img.ndim == 3:
+                    img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+                _check_size(self.path, img, self.camera, f"video frame {i}")
+                yield Frame(i, i / self.fps, img, None)
+                i += 1
+        finally:
+            cap.release()
+            self._cap = None
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+
+
+class LiveCameraSequence(Sequence):
+    """A live camera (``cv2.VideoCapture(index)``); timestamps from ``time.monotonic()``;
+    ``len()`` raises TypeError. Iteration ends when the camera stops delivering frames."""
+
+    kind = "camera"
+
+    def __init__(self, index: int, camera: Camera):
+        import cv2
+        super().__init__(f"camera{index}", camera, None)
+        self.index = index
+        cap = cv2.VideoCapture(index)
+        if not cap.isOpened():
+            raise InputError(f"camera {index}: cannot open (no such device or it is busy)")
+        cap.set(cv2.CAP_PROP_FRAME_WIDTH, camera.width)
+        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, camera.height)
+        self._cap = cap
+
+    def __len__(self) -> int:
+        raise TypeError("a live camera has no length")
+
+    def __iter__(self) -> Iterator[Frame]:
+        import cv2
+        i = 0
+        while self._cap is not None:
+            ok, img = self._cap.read()
+            t = time.monotonic()
+            if not ok or img is None:
+                break
+            if img.ndim == 3:
+                img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+            _check_size(f"camera {self.index}", img, self.camera, "frame")
+            yield Frame(i, t, img, None)
+            i += 1
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+
+# ------------------------------------------------------------------------------------------------
+# readers
+# ------------------------------------------------------------------------------------------------
+
+def _read_file_list(path: Path, base: Path, what: str, sep: str | None = None,
+                    ts_scale: float = 1.0) -> tuple[np.ndarray, list[Path]]:
+    """(timestamps, paths) of a ``timestamp filename`` list; checks fields, order and existence."""
+    ts, files, numbers = [], [], []
+    for n, s in read_lines(path, what):
+        f = s.split(sep) if sep else s.split()
+        f = [x.strip() for x in f]
+        if len(f) != 2 or not f[1]:
+            raise InputError(f"{path} line {n}: expected 'timestamp{',' if sep else ''} filename', got {s!r}")
+        try:
+            t = float(f[0]) * ts_scale if ts_scale == 1.0 else int(f[0]) * ts_scale
+        except ValueError:
+            raise InputError(f"{path} line {n}: timestamp {f[0]!r} is not a number") from None
+        if not np.isfinite(t):
+            raise InputError(f"{path} line {n}: timestamp {f[0]!r} is not finite")
+        p = base / f[1]
+        if not p.is_file():
+            raise InputError(f"{path} line {n}: file {f[1]} does not exist ({p})")
+        ts.append(t)
+        files.append(p)
+        numbers.append(n)
+    if not files:
+        raise InputError(f"{path}: lists no images")
+    t = np.asarray(ts, dtype=np.float64)
+    check_increasing(path, t, numbers)
+    return t, files
+
+
+def associate_nearest(t_a: np.ndarray, t_b: np.ndarray, max_dt: float) -> np.ndarray:
+    """For each time in ``t_a`` the index into ``t_b`` it is paired with, or -1.
+
+    One-to-one greedy matching by smallest time difference (as TUM's ``associate.py``), only
+    pairs within ``max_dt``. Both arrays must be sorted."""
+    t_a = np.asarray(t_a, dtype=np.float64)
+    t_b = np.asarray(t_b, dtype=np.float64)
+    out = np.full(len(t_a), -1, dtype=np.int64)
+    if len(t_a) == 0 or len(t_b) == 0:
+        return out
+    cand = []
+    j = np.searchsorted(t_b, t_a)
+    for off in (-2, -1, 0, 1):
+        jj = j + off
+        ok = (jj >= 0) & (jj < len(t_b))
+        ia = np.nonzero(ok)[0]
+        d = np.abs(t_b[jj[ok]] - t_a[ok])
+        keep = d <= max_dt
+        cand.append(np.stack([d[keep], ia[keep], jj[ok][keep]], axis=1))
+    c = np.concatenate(cand)
+    if len(c) == 0:
+        return out
+    c = c[np.lexsort((c[:, 2], c[:, 1], c[:, 0]))]
+    used_b = np.zeros(len(t_b), dtype=bool)
+    for d, ia, jb in c:
+        ia, jb = int(ia), int(jb)
+        if out[ia] < 0 and not used_b[jb]:
+            out[ia] = jb
+            used_b[jb] = True
+    return out
+
+
+def _read_accelerometer_txt(path: Path) -> Accelerometer:
+    arr, numbers = parse_table(path, 4, 4, what="accelerometer file", layout="timestamp ax ay az")
+    if len(arr) == 0:
+        raise InputError(f"{path}: contains no samples")
+    check_increasing(path, arr[:, 0], numbers)
+    return Accelerometer(arr[:, 0], arr[:, 1:4])
+
+
+def _read_tum_groundtruth(path: Path) -> Trajectory:
+    t, rows, _ = parse_tum_rows(path, "ground truth file")
+    if len(t) == 0:
+        raise InputError(f"{path}: contains no poses")
+    return Trajectory(t, pose_from_tum(rows))
+
+
+def _load_calibration(calib) -> Calibration:
+    if isinstance(calib, Calibration):
+        return calib
+    if isinstance(calib, Camera):
+        return Calibration(calib, None, "camera object")
+    return read_calib_txt(Path(calib))
+
+
+def open_tum(folder: Path, calib=None, depth_max_dt: float = DEFAULT_DEPTH_MAX_DT) -> TumSequence:
+    """A TUM RGB-D layout folder (``rgb.txt`` + optional depth, ground truth, accelerometer)."""
+    name = folder.name
+    if calib is not None:
+        cal = _load_calibration(calib)
+    elif (folder / "calib.txt").is_file():
+        cal = read_calib_txt(folder / "calib.txt")
+    elif freiburg_number(name) is not None:
+        cal = Calibration(freiburg_camera(freiburg_number(name)), TUM_DEPTH_SCALE, f"Freiburg {freiburg_number(name)}")
+    else:
+        raise InputError(f"{folder}: no calib.txt (and the folder name is not rgbd_dataset_freiburgN_*, "
+                         "so no published calibration applies)")
+    t_rgb, rgb = _read_file_list(folder / "rgb.txt", folder, "image list")
+    depth_paths = None
+    if (folder / "depth.txt").is_file():
+        t_d, dfiles = _read_file_list(folder / "depth.txt", folder, "depth list")
+        match = associate_nearest(t_rgb, t_d, depth_max_dt)
+        depth_paths = [dfiles[j] if j >= 0 else None for j in match]
+    depth_scale = cal.depth_scale if cal.depth_scale is not None else TUM_DEPTH_SCALE
+    seq = TumSequence(name, cal.camera, folder, t_rgb, rgb, depth_paths, depth_scale)
+    if (folder / "groundtruth.txt").is_file():
+        seq.groundtruth = _read_tum_groundtruth(folder / "groundtruth.txt")
+    if (folder / "accelerometer.txt").is_file():
+        seq.accelerometer = _read_accelerometer_txt(folder / "accelerometer.txt")
+    _imread_grey(rgb[0], cal.camera)  # fail early on a wrong calibration or unreadable images
+    return seq
+
+
+def open_euroc(mav0: Path, calib=None) -> EurocSequence:
+    """An EuRoC MAV ``mav0`` folder: cam0 images, IMU accelerometer and ground truth converted into
+    the camera frame with the sensor extrinsics (``T_world_cam = T_world_body @ T_body_cam``)."""
+    name = mav0.parent.name if mav0.name == "mav0" else mav0.name
+    cam_dir = mav0 / "cam0"
+    if not cam_dir.is_dir():
+        raise InputError(f"{cam_dir}: EuRoC camera folder not found")
+    cam_yaml = cam_dir / "sensor.yaml"
+    if calib is not None:
+        camera = _load_calibration(calib).camera
+        T_body_cam = yaml_matrix4(cam_yaml, parse_simple_yaml(cam_yaml)) if cam_yaml.is_file() else np.eye(4)
+    else:
+        if not cam_yaml.is_file():
+            raise InputError(f"{cam_yaml}: camera calibration not found")
+        camera, T_body_cam = read_euroc_camera_yaml(cam_yaml)
+    t, images = _read_file_list(cam_dir / "data.csv", cam_dir / "data", "image list", sep=",", ts_scale=1e-9)
+    seq = EurocSequence(name, camera, mav0, t, images)
+    R_cam_body = T_body_cam[:3, :3].T
+
+    imu_csv = mav0 / "imu0" / "data.csv"
+    if imu_csv.is_file():
+        arr, numbers = parse_table(imu_csv, 7, None, sep=",", what="IMU file",
+                                   layout="timestamp [ns], w_x, w_y, w_z, a_x, a_y, a_z")
+        if len(arr):
+            ts = _ns_column(imu_csv)
+            check_increasing(imu_csv, ts, numbers)
+            imu_yaml = mav0 / "imu0" / "sensor.yaml"
+            T_body_imu = yaml_matrix4(imu_yaml, parse_simple_yaml(imu_yaml)) if imu_yaml.is_file() else np.eye(4)
+            acc_cam = arr[:, 4:7] @ (R_cam_body @ T_body_imu[:3, :3]).T
+            seq.accelerometer = Accelerometer(ts, acc_cam)
+
+    gt_csv = mav0 / "state_groundtruth_estimate0" / "data.csv"
+    if gt_csv.is_file():
+        arr, numbers = parse_table(gt_csv, 8, None, sep=",", what="ground truth file",
+                                   layout="timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z")
+        if len(arr):
+            ts = _ns_column(gt_csv)
+            check_increasing(gt_csv, ts, numbers)
+            q_wxyz = arr[:, 4:8]
+            bad = np.nonzero(np.linalg.norm(q_wxyz, axis=1) < 1e-6)[0]
+            if len(bad):
+                raise InputError(f"{gt_csv} line {numbers[bad[0]]}: quaternion has zero length")
+            R = rotmat_from_quat_xyzw(q_wxyz[:, [1, 2, 3, 0]])
+            T_world_body = make_pose(R, arr[:, 1:4])
+            gt_yaml = mav0 / "state_groundtruth_estimate0" / "sensor.yaml"
+            T_body_gt = yaml_matrix4(gt_yaml, parse_simple_yaml(gt_yaml)) if gt_yaml.is_file() else np.eye(4)
+            # the ground truth gives the pose of its sensor frame S: T_world_S; body = S T_BS^-1
+            T_world_bodyframe = T_world_body @ np.linalg.inv(T_body_gt)
+            seq.groundtruth = Trajectory(ts, T_world_bodyframe @ T_body_cam)
+    _imread_grey(images[0], camera)
+    return seq
+
+
+def _ns_column(path: Path) -> np.ndarray:
+    """First CSV column as integer nanoseconds -> float seconds (exact integer parsing)."""
+    out = []
+    for n, s in read_lines(path):
+        tok = s.split(",", 1)[0].strip()
+        try:
+            out.append(int(tok))
+        except ValueError:
+            try:
+                out.append(int(float(tok)))
+            except ValueError:
+                raise InputError(f"{path} line {n}: timestamp {tok!r} is not an integer number of nanoseconds") from None
+    return np.asarray(out, dtype=np.int64) * 1e-9
+
+
+def open_image_folder(folder: Path, calib=None, fps: Optional[float] = None) -> ImageFolderSequence:
+    """A folder of images (sorted by name, natural order) with ``calib.txt`` (or ``calib``);
+    timestamps from ``times.txt`` (one per image) if present, else ``index / fps``."""
+    files = sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
+                   key=lambda p: _natural_key(p.name))
+    if not files:
+        raise InputError(f"{folder}: no image files")
+    if calib is not None:
+        cal = _load_calibration(calib)
+    elif (folder / "calib.txt").is_file():
+        cal = read_calib_txt(folder / "calib.txt")
+    else:
+        raise InputError(f"{folder}: image folder without calib.txt (pass a calibration file)")
+    times = folder / "times.txt"
+    if times.is_file():
+        arr, numbers = parse_table(times, 1, None, what="times file", layout="timestamp")
+        if len(arr) != len(files):
+            raise InputError(f"{times}: has {len(arr)} timestamps for {len(files)} images")
+        check_increasing(times, arr[:, 0], numbers)
+        t = arr[:, 0]
+    else:
+        f = float(fps) if fps else DEFAULT_FPS
+        if not f > 0:
+            raise InputError(f"fps must be positive, got {fps}")
+        t = np.arange(len(files)) / f
+    seq = ImageFolderSequence(folder.name, cal.camera, folder, t, files)
+    if (folder / "groundtruth.txt").is_file():
+        seq.groundtruth = _read_tum_groundtruth(folder / "groundtruth.txt")
+    _imread_grey(files[0], cal.camera)
+    return seq
+
+
+def _find_mav0(folder: Path) -> Optional[Path]:
+    if (folder / "cam0" / "data.csv").is_file():
+        return folder
+    if (folder / "mav0").is_dir():
+        return folder / "mav0"
+    return None
+
+
+def open_sequence(path: Union[str, os.PathLike, int], calib=None, *, fps: Optional[float] = None,
+                  depth_max_dt: float = DEFAULT_DEPTH_MAX_DT) -> Sequence:
+    """Open a sequence.
+
+    ``path``: a TUM RGB-D layout folder (``rgb.txt``), an EuRoC folder (with ``mav0/``, or
+    ``mav0`` itself), an image folder (+ ``calib.txt`` inside or ``calib``), a video file
+    (+ ``calib`` or ``calib.txt`` beside it), or an ``int`` (or digit string) camera index for a
+    live camera (``calib`` required).
+    ``calib``: path of a ``calib.txt`` (or a :class:`Camera`) overriding the sequence's own.
+    ``fps``: frame rate for image folders without ``times.txt`` and to override a video's rate.
+    ``depth_max_dt``: TUM rgb/depth association tolerance in seconds.
+    """
+    if isinstance(path, (int, np.integer)) or (isinstance(path, str) and path.isdigit() and not Path(path).exists()):
+        index = int(path)
+        if calib is None:
+            raise InputError(f"camera {index}: a calibration file is required for a live camera")
+        return LiveCameraSequence(index, _load_calibration(calib).camera)
+    p = Path(path).expanduser()
+    if not p.exists():
+        raise InputError(f"{p}: no such file or directory")
+    if p.is_file():
+        if p.suffix.lower() in VIDEO_EXTENSIONS:
+            if calib is None:
+                beside = p.parent / "calib.txt"
+                if not beside.is_file():
+                    raise InputError(f"{p}: video needs a calibration file (calib.txt beside it or calib=)")
+                calib = beside
+            return VideoSequence(p, _load_calibration(calib).camera, fps)
+        raise InputError(f"{p}: unknown sequence format (expected a folder or a video file "
+                         f"{'/'.join(VIDEO_EXTENSIONS)})")
+    if (p / "rgb.txt").is_file():
+        return open_tum(p, calib, depth_max_dt)
+    mav0 = _find_mav0(p)
+    if mav0 is not None:
+        return open_euroc(mav0, calib)
+    if any(c.is_file() and c.suffix.lower() in IMAGE_EXTENSIONS for c in p.iterdir()):
+        return open_image_folder(p, calib, fps)
+    raise InputError(f"{p}: unknown sequence format (no rgb.txt (TUM), mav0/ (EuRoC) or image files)")
