@@ -1,0 +1,231 @@
+"""Trajectory evaluation: association by timestamp, SE(3)/Sim(3) alignment (Umeyama), absolute
+trajectory error (ATE) and relative pose error per second (RPE, TUM RGB-D benchmark style,
+the metric of the thesis' Table 5.1).
+
+Pure computation on :class:`~lite_vo.io.Trajectory` objects: imports numpy, ``lite_vo.geometry``
+and the io data types only; never the CLI, plotting or sequence readers' image code.
+
+Definitions (``E`` estimate, ``G`` ground truth, both ``T_world_cam``):
+
+* association: one-to-one, greedy by smallest time difference, pairs within ``max_dt`` seconds;
+* alignment ``S = (s, R, t)`` minimising ``sum |p_gt - (s R p_est + t)|^2`` over matched camera
+  centres (Umeyama 1991); ``none``: identity; ``se3``: s = 1; ``sim3``: free scale. The scale is
+  applied to the estimate's translations before RPE as well;
+* ATE RMSE: ``sqrt(mean |p_gt - S(p_est)|^2)`` in metres;
+* RPE: for each matched pose i, the matched pose j whose timestamp is closest to ``t_i + delta_s``
+  (pairs whose target lies beyond the end, or whose ``t_j`` is more than ``delta_s / 2`` from the
+  target because of a gap, are skipped); error ``inv(G_i^-1 G_j) (E_i^-1 E_j)``; translational
+  norm and rotation angle each divided by the actual ``t_j - t_i``; RMSE over pairs, reported in
+  cm/s and deg/s. ``motion_cm_per_s`` / ``rot_motion_deg_per_s`` are the mean ground-truth
+  speeds over the same pairs, ``rpe_trans_pct = 100 * rpe_trans / motion``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from .errors import InputError
+from .io.sequences import associate_nearest
+from .io.types import Trajectory
+
+ALIGN_MODES = ("none", "se3", "sim3")
+
+
+def associate(t_est: np.ndarray, t_gt: np.ndarray, max_dt: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """Index arrays ``(i_est, i_gt)`` of one-to-one matches within ``max_dt``, sorted by estimate time."""
+    match = associate_nearest(t_est, t_gt, max_dt)
+    i_est = np.nonzero(match >= 0)[0]
+    return i_est, match[i_est]
+
+
+def umeyama_alignment(src_xyz: np.ndarray, dst_xyz: np.ndarray, with_scale: bool
+                      ) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(s, R, t)`` minimising ``sum |dst - (s R src + t)|^2`` (Umeyama 1991).
+
+    Degenerate input (fewer than 3 distinct points, collinear points) still gives a minimiser;
+    when ``src`` does not move at all the scale is undefined and 1 is returned."""
+    src = np.asarray(src_xyz, dtype=np.float64)
+    dst = np.asarray(dst_xyz, dtype=np.float64)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) == 0:
+        raise ValueError(f"expected two (N, 3) arrays, got {src.shape} and {dst.shape}")
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    var_s = float((xs ** 2).sum(1).mean())
+    cov = xd.T @ xs / len(src)
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1.0
+    R = U @ S @ Vt
+    if with_scale and var_s > 1e-24:
+        s = float(np.trace(np.diag(D) @ S) / var_s)
+    else:
+        s = 1.0
+    t = mu_d - s * R @ mu_s
+    return s, R, t
+
+
+def _rot_angle(R: np.ndarray) -> np.ndarray:
+    """Rotation angle in radians (accurate near 0 and pi: atan2 of sine and cosine parts)."""
+    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    sv = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    return np.arctan2(0.5 * np.linalg.norm(sv, axis=-1), c)
+
+
+def _nan_to_none(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+@dataclass
+class EvalResult:
+    """Accuracy of an estimated trajectory against ground truth (see the module docstring)."""
+    rpe_trans_cm_per_s: float
+    rpe_rot_deg_per_s: float
+    ate_rmse_m: float
+    scale: float
+    matched_poses: int
+    rpe_pairs: int
+    motion_cm_per_s: float
+    rot_motion_deg_per_s: float
+    rpe_trans_pct: float
+    path_length_m: float
+    ate_pct_of_path: float
+    ate_mean_m: float
+    ate_median_m: float
+    ate_max_m: float
+    rpe_trans_mean_cm_per_s: float
+    rpe_rot_mean_deg_per_s: float
+    align: str
+    delta_s: float
+    max_dt: float
+    estimated_poses: int
+    gt_poses: int
+    T_gt_est: np.ndarray = field(repr=False)        # 4x4 similarity applied to the estimate
+    ate_errors_m: np.ndarray = field(repr=False)    # per matched pose
+    warnings: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict: the contract keys ``rpe_trans_cm_per_s``, ``rpe_rot_deg_per_s``,
+        ``ate_rmse_m``, ``scale``, ``matched_poses`` plus the extras (NaN -> None)."""
+        keys = ["rpe_trans_cm_per_s", "rpe_rot_deg_per_s", "ate_rmse_m", "scale", "matched_poses",
+                "rpe_pairs", "motion_cm_per_s", "rot_motion_deg_per_s", "rpe_trans_pct", "path_length_m",
+                "ate_pct_of_path", "ate_mean_m", "ate_median_m", "ate_max_m", "rpe_trans_mean_cm_per_s",
+                "rpe_rot_mean_deg_per_s", "align", "delta_s", "max_dt", "estimated_poses", "gt_poses"]
+        d = {k: getattr(self, k) for k in keys}
+        d = {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in d.items()}
+        d = {k: _nan_to_none(v) for k, v in d.items()}
+        d["T_gt_est"] = np.asarray(self.T_gt_est).tolist()
+        d["warnings"] = list(self.warnings)
+        return d
+
+    def table(self) -> str:
+        """A small human-readable table."""
+        def f(v, fmt):
+            return "n/a" if v is None or not math.isfinite(v) else format(v, fmt)
+        scale = f" (scale {self.scale:.4f})" if self.align == "sim3" else ""
+        rows = [
+            ("matched poses", f"{self.matched_poses} (estimate {self.estimated_poses}, ground truth {self.gt_poses}, "
+                              f"max dt {self.max_dt:g} s)"),
+            ("alignment", f"{self.align}{scale}"),
+            ("ATE RMSE", f"{f(self.ate_rmse_m, '.4f')} m  ({f(self.ate_pct_of_path, '.2f')} % of the "
+                         f"{f(self.path_length_m, '.3f')} m path; max {f(self.ate_max_m, '.4f')} m)"),
+            ("RPE translation", f"{f(self.rpe_trans_cm_per_s, '.3f')} cm/s  ({f(self.rpe_trans_pct, '.1f')} % of "
+                                f"{f(self.motion_cm_per_s, '.2f')} cm/s motion; {self.rpe_pairs} pairs, "
+                                f"delta {self.delta_s:g} s)"),
+            ("RPE rotation", f"{f(self.rpe_rot_deg_per_s, '.3f')} deg/s  (motion "
+                             f"{f(self.rot_motion_deg_per_s, '.2f')} deg/s)"),
+        ]
+        w = max(len(r[0]) for r in rows)
+        out = [f"{k:<{w}}  {v}" for k, v in rows]
+        out += [f"warning: {m}" for m in self.warnings]
+        return "\n".join(out)
+
+
+def relative_pairs(t: np.ndarray, delta_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs ``(i, j)``: for each i the j with ``t_j`` closest to ``t_i + delta_s`` (see module doc)."""
+    t = np.asarray(t, dtype=np.float64)
+    n = len(t)
+    if n < 2:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    target = t + delta_s
+    j = np.clip(np.searchsorted(t, target), 1, n - 1)
+    j = np.where(np.abs(t[j - 1] - target) <= np.abs(t[j] - target), j - 1, j)
+    i = np.arange(n)
+    tol = 1e-9 * max(1.0, float(np.abs(t).max()))
+    ok = (j > i) & (target <= t[-1] + tol) & (np.abs(t[j] - target) <= 0.5 * delta_s + tol)
+    return i[ok], j[ok]
+
+
+def evaluate(gt: Trajectory, est: Trajectory, align: str = "sim3", delta_s: float = 1.0,
+             max_dt: float = 0.02) -> EvalResult:
+    """Compare ``est`` with ``gt`` (both ``T_world_cam``); see the module docstring for definitions.
+
+    Raises InputError when fewer than 2 poses match (or fewer than 3 with alignment)."""
+    if align not in ALIGN_MODES:
+        raise InputError(f"unknown alignment {align!r} (use one of {', '.join(ALIGN_MODES)})")
+    if not (delta_s > 0) or not (max_dt >= 0):
+        raise InputError(f"delta_s must be > 0 and max_dt >= 0 (got {delta_s}, {max_dt})")
+    i_est, i_gt = associate(est.timestamps, gt.timestamps, max_dt)
+    n = len(i_est)
+    need = 3 if align != "none" else 2
+    if n < need:
+        span = lambda tr: f"{tr.timestamps[0]:.3f}..{tr.timestamps[-1]:.3f} s" if len(tr) else "empty"
+        raise InputError(f"only {n} estimated poses match the ground truth within {max_dt:g} s (need {need}; "
+                         f"estimate {span(est)}, ground truth {span(gt)})")
+    warnings: list[str] = []
+    t = est.timestamps[i_est]
+    E = est.poses[i_est]
+    G = gt.poses[i_gt]
+    p_est, p_gt = E[:, :3, 3], G[:, :3, 3]
+    if align == "none":
+        s, R, tr = 1.0, np.eye(3), np.zeros(3)
+    else:
+        s, R, tr = umeyama_alignment(p_est, p_gt, with_scale=(align == "sim3"))
+        if align == "sim3" and float(((p_est - p_est.mean(0)) ** 2).sum(1).mean()) <= 1e-24:
+            warnings.append("the estimate does not move: the Sim(3) scale is undefined (set to 1)")
+    S = np.eye(4)
+    S[:3, :3] = s * R
+    S[:3, 3] = tr
+    aligned = p_est @ (s * R).T + tr
+    err = np.linalg.norm(p_gt - aligned, axis=1)
+    ate_rmse = float(np.sqrt(np.mean(err ** 2)))
+    path = float(np.linalg.norm(np.diff(p_gt, axis=0), axis=1).sum()) if n > 1 else 0.0
+
+    # RPE on the scale-corrected estimate (rotation of the alignment cancels in relative motions)
+    Es = E.copy()
+    Es[:, :3, 3] *= s
+    i, j = relative_pairs(t, delta_s)
+    nan = float("nan")
+    if len(i) == 0:
+        warnings.append(f"no pose pairs {delta_s:g} s apart: RPE undefined (trajectory spans "
+                        f"{t[-1] - t[0]:.3f} s)")
+        rpe_t = rpe_r = mot_t = mot_r = pct = rpe_t_mean = rpe_r_mean = nan
+    else:
+        dt = t[j] - t[i]
+        E_rel = np.linalg.inv(Es[i]) @ Es[j]
+        G_rel = np.linalg.inv(G[i]) @ G[j]
+        D = np.linalg.inv(G_rel) @ E_rel
+        et = np.linalg.norm(D[:, :3, 3], axis=1) / dt
+        er = np.degrees(_rot_angle(D[:, :3, :3])) / dt
+        mt = np.linalg.norm(G_rel[:, :3, 3], axis=1) / dt
+        mr = np.degrees(_rot_angle(G_rel[:, :3, :3])) / dt
+        rpe_t = 100.0 * float(np.sqrt(np.mean(et ** 2)))
+        rpe_r = float(np.sqrt(np.mean(er ** 2)))
+        rpe_t_mean = 100.0 * float(et.mean())
+        rpe_r_mean = float(er.mean())
+        mot_t = 100.0 * float(mt.mean())
+        mot_r = float(mr.mean())
+        pct = 100.0 * rpe_t / mot_t if mot_t > 0 else nan
+    return EvalResult(
+        rpe_trans_cm_per_s=rpe_t, rpe_rot_deg_per_s=rpe_r, ate_rmse_m=ate_rmse, scale=float(s),
+        matched_poses=int(n), rpe_pairs=int(len(i)), motion_cm_per_s=mot_t, rot_motion_deg_per_s=mot_r,
+        rpe_trans_pct=pct, path_length_m=path, ate_pct_of_path=100.0 * ate_rmse / path if path > 0 else nan,
+        ate_mean_m=float(err.mean()), ate_median_m=float(np.median(err)), ate_max_m=float(err.max()),
+        rpe_trans_mean_cm_per_s=rpe_t_mean, rpe_rot_mean_deg_per_s=rpe_r_mean, align=align,
+        delta_s=float(delta_s), max_dt=float(max_dt), estimated_poses=len(est), gt_poses=len(gt),
+        T_gt_est=S, ate_errors_m=err, warnings=warnings)
