@@ -1,0 +1,274 @@
+"""Physics of the AR demo: pybullet (DIRECT mode, own client id), the world as a static concave
+triangle mesh, the ``pybullet_data`` racecar and a simple autopilot.
+
+**Physics frame.** pybullet works in a frame ``P`` with ``z`` up (the estimated ground normal),
+the ground plane at ``z = 0`` and gravity ``(0, 0, -9.81)``. Points map as
+``p_phys = s * R_phys_world @ (p_world - origin_world)``: a similarity, so the racecar keeps its
+native size and dynamics (about 0.47 m long) and the *scene* is scaled around it; equivalently the
+car is scaled to the scene. ``s`` comes from the car length wanted in world units: a fixed metric
+length for metric runs, else a fraction of the median scene depth (monocular scale is arbitrary).
+The frame is fixed once (first world model) so the simulation never jumps.
+
+**World swap.** :meth:`PhysicsWorld.set_world_mesh` adds the new static body first and then removes
+the old one (and its collision shape) between two simulation steps: the car keeps its state.
+
+Ownership: a :class:`PhysicsWorld` is used by one thread only (the pipeline's main loop).
+Imports: numpy, pybullet, pybullet_data, lite_vo (errors).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lite_vo.errors import MissingExtraError
+
+GRAVITY = 9.81            # physical constant of the simulated world (m/s^2)
+WHEELS = (2, 3, 5, 7)     # racecar.urdf joint indices of the driven wheels
+STEERING = (4, 6)         # racecar.urdf joint indices of the steering hinges
+
+
+def _pybullet():
+    try:
+        import pybullet
+        import pybullet_data
+    except ImportError as err:  # pragma: no cover
+        raise MissingExtraError("the AR demo needs the [ar] extra: pip install 'lite-vo[ar]'") from err
+    return pybullet, pybullet_data
+
+
+@dataclass(frozen=True)
+class PhysicsFrame:
+    """Similarity between the world (VO) frame and the physics frame (z up, ground at z = 0)."""
+    R_phys_world: np.ndarray     # (3, 3) rows: x, y, z (= up) axes of P in world coordinates
+    origin_world: np.ndarray     # (3,) origin of P (on the ground plane)
+    scale: float                 # physics units per world unit
+
+    @classmethod
+    def from_ground(cls, normal_world, height, T_world_cam0, scale: float) -> "PhysicsFrame":
+        n = np.asarray(normal_world, dtype=np.float64)
+        n = n / np.linalg.norm(n)
+        T = np.asarray(T_world_cam0, dtype=np.float64)
+        fwd = T[:3, 2] - (T[:3, 2] @ n) * n           # camera forward projected onto the plane
+        if np.linalg.norm(fwd) < 1e-6:                # looking straight down: use the image up axis
+            fwd = -T[:3, 1] - (-T[:3, 1] @ n) * n
+        x = fwd / np.linalg.norm(fwd)
+        y = np.cross(n, x)
+        C = T[:3, 3]
+        origin = C - (C @ n - height) * n
+        return cls(np.stack([x, y, n]), origin, float(scale))
+
+    def to_phys(self, points_world: np.ndarray) -> np.ndarray:
+        return self.scale * (np.asarray(points_world, dtype=np.float64) - self.origin_world) @ self.R_phys_world.T
+
+    def to_world(self, points_phys: np.ndarray) -> np.ndarray:
+        return np.asarray(points_phys, dtype=np.float64) @ self.R_phys_world / self.scale + self.origin_world
+
+    @property
+    def S_world_phys(self) -> np.ndarray:
+        """4x4 similarity matrix mapping physics points into the world."""
+        S = np.eye(4)
+        S[:3, :3] = self.R_phys_world.T / self.scale
+        S[:3, 3] = self.origin_world
+        return S
+
+
+def _quat_matrix(q) -> np.ndarray:
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def pose_matrix(pos, quat_xyzw) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = _quat_matrix(quat_xyzw)
+    T[:3, 3] = pos
+    return T
+
+
+@dataclass
+class Autopilot:
+    """Drive forward with a gentle wander, steer towards a target (to stay in view), reverse with
+    opposite steering when blocked. All quantities in physics units (car length ``car_length``)."""
+    cfg: object
+    car_length: float
+    mode: str = "drive"
+    t_mode: float = 0.0
+    t_blocked: float = 0.0
+    t: float = 0.0
+    reversals: int = 0
+    last_steer: float = 0.0
+
+    def command(self, dt: float, pos_xy, heading: float, forward_speed: float,
+                target_xy=None) -> tuple[float, float]:
+        """(wheel target velocity rad/s, steering angle rad) for the next ``dt`` seconds."""
+        c = self.cfg
+        self.t += dt
+        self.t_mode += dt
+        wander = 0.5 * c.max_steer * math.sin(2 * math.pi * self.t / c.wander_period_s)
+        if self.mode == "drive":
+            steer = wander
+            if target_xy is not None:
+                d = np.asarray(target_xy, dtype=np.float64) - np.asarray(pos_xy, dtype=np.float64)
+                if np.hypot(*d) > 1.5 * self.car_length:
+                    err = (math.atan2(d[1], d[0]) - heading + math.pi) % (2 * math.pi) - math.pi
+                    steer = float(np.clip(1.5 * err, -c.max_steer, c.max_steer))
+            if self.t_mode > 0.5 and forward_speed < c.blocked_speed * self.car_length:
+                self.t_blocked += dt
+            else:
+                self.t_blocked = 0.0
+            if self.t_blocked > c.blocked_time_s:
+                self.mode, self.t_mode, self.t_blocked = "reverse", 0.0, 0.0
+                self.reversals += 1
+                self.last_steer = -math.copysign(c.max_steer, steer if steer else 1.0)
+            else:
+                self.last_steer = steer
+                return c.drive_speed, steer
+        # reverse: back up with the opposite steering, then drive again
+        if self.t_mode > c.reverse_time_s:
+            self.mode, self.t_mode = "drive", 0.0
+        return -c.drive_speed, self.last_steer
+
+
+@dataclass
+class CarState:
+    T_phys_base: np.ndarray
+    speed: float           # forward speed (physics units / s)
+    mode: str
+
+
+@dataclass
+class PhysicsWorld:
+    """pybullet world: static world mesh, optional ground slab, racecar, autopilot."""
+    cfg: object
+    frame: PhysicsFrame
+    client: int = -1
+    world_body: int = -1
+    world_shape: int = -1
+    ground_body: int = -1
+    car: int = -1
+    car_length: float = 0.0
+    autopilot: Autopilot | None = None
+    sim_time: float = 0.0
+    world_swaps: int = 0
+    _pb: object = field(default=None, repr=False)
+
+    def __post_init__(self):
+        pb, pbd = _pybullet()
+        self._pb = pb
+        self._data = pbd.getDataPath()
+        self.client = pb.connect(pb.DIRECT)
+        pb.setGravity(0, 0, -GRAVITY, physicsClientId=self.client)
+        pb.setTimeStep(1.0 / self.cfg.physics_hz, physicsClientId=self.client)
+        pb.setAdditionalSearchPath(self._data, physicsClientId=self.client)
+
+    # ------------------------------------------------------------------ world
+    def add_ground_slab(self, half_extent: float) -> None:
+        """A thin static box whose top is the ground plane (z = 0), ``half_extent`` wide each way."""
+        pb, c = self._pb, self.client
+        shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[half_extent, half_extent, 0.05], physicsClientId=c)
+        self.ground_body = pb.createMultiBody(0, shape, -1, [0, 0, -0.05], physicsClientId=c)
+
+    def set_world_mesh(self, vertices_world: np.ndarray, faces: np.ndarray) -> None:
+        """Replace the static world body by the mesh (world coordinates): add new, remove old."""
+        pb, c = self._pb, self.client
+        faces = np.asarray(faces, dtype=np.int32)
+        old_body, old_shape = self.world_body, self.world_shape
+        self.world_body, self.world_shape = -1, -1
+        if len(faces):
+            verts = self.frame.to_phys(vertices_world)
+            shape = pb.createCollisionShape(pb.GEOM_MESH, vertices=verts.tolist(), indices=faces.ravel().tolist(),
+                                            flags=pb.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=c)
+            body = pb.createMultiBody(baseMass=0, baseCollisionShapeIndex=shape, physicsClientId=c)
+            self.world_body, self.world_shape = body, shape
+        if old_body >= 0:
+            pb.removeBody(old_body, physicsClientId=c)
+            pb.removeCollisionShape(old_shape, physicsClientId=c)
+        self.world_swaps += 1
+
+    # ------------------------------------------------------------------ car
+    def spawn_car(self, xy_phys, yaw: float) -> None:
+        """Load the racecar above ``xy_phys`` (dropped from ``spawn_height`` car lengths above the
+        surface below it), heading ``yaw`` about the up axis."""
+        pb, c = self._pb, self.client
+        if self.car >= 0:
+            pb.removeBody(self.car, physicsClientId=c)
+        self.car = pb.loadURDF("racecar/racecar.urdf", [0, 0, 0], [0, 0, 0, 1], physicsClientId=c)
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        for link in range(-1, pb.getNumJoints(self.car, physicsClientId=c)):
+            a, b = pb.getAABB(self.car, link, physicsClientId=c)
+            lo, hi = np.minimum(lo, a), np.maximum(hi, b)
+        self.car_length = float(hi[0] - lo[0])
+        ground = self.ray_down(xy_phys)
+        z = (0.0 if ground is None else ground) + self.cfg.spawn_height * self.car_length
+        pb.resetBasePositionAndOrientation(self.car, [float(xy_phys[0]), float(xy_phys[1]), z],
+                                           pb.getQuaternionFromEuler([0, 0, yaw]), physicsClientId=c)
+        for j in WHEELS:
+            pb.setJointMotorControl2(self.car, j, pb.VELOCITY_CONTROL, targetVelocity=0, force=0, physicsClientId=c)
+        self.autopilot = Autopilot(self.cfg, self.car_length)
+
+    def car_state(self) -> CarState:
+        pb, c = self._pb, self.client
+        pos, quat = pb.getBasePositionAndOrientation(self.car, physicsClientId=c)
+        T = pose_matrix(pos, quat)
+        lin, _ = pb.getBaseVelocity(self.car, physicsClientId=c)
+        speed = float(np.asarray(lin) @ T[:3, 0])
+        return CarState(T, speed, self.autopilot.mode if self.autopilot else "idle")
+
+    def drive(self, wheel_velocity: float, steer: float) -> None:
+        pb, c = self._pb, self.client
+        for j in WHEELS:
+            pb.setJointMotorControl2(self.car, j, pb.VELOCITY_CONTROL, targetVelocity=wheel_velocity,
+                                     force=self.cfg.drive_force, physicsClientId=c)
+        for j in STEERING:
+            pb.setJointMotorControl2(self.car, j, pb.POSITION_CONTROL, targetPosition=steer, physicsClientId=c)
+
+    def step(self, dt: float, target_xy=None, autopilot: bool = True) -> None:
+        """Advance the simulation by ``dt`` simulated seconds (fixed internal steps); the autopilot
+        decides once per call."""
+        pb, c = self._pb, self.client
+        n = max(1, int(round(dt * self.cfg.physics_hz)))
+        if self.car >= 0 and autopilot and self.autopilot is not None:
+            st = self.car_state()
+            yaw = math.atan2(st.T_phys_base[1, 0], st.T_phys_base[0, 0])
+            vel, steer = self.autopilot.command(n / self.cfg.physics_hz, st.T_phys_base[:2, 3], yaw, st.speed, target_xy)
+            self.drive(vel, steer)
+        for _ in range(n):
+            pb.stepSimulation(physicsClientId=c)
+        self.sim_time += n / self.cfg.physics_hz
+
+    def link_poses_phys(self) -> dict[int, np.ndarray]:
+        """URDF link frames (-1 = base) of the car in the physics frame."""
+        pb, c = self._pb, self.client
+        out = {-1: self.car_state().T_phys_base}
+        n = pb.getNumJoints(self.car, physicsClientId=c)
+        for link, st in enumerate(pb.getLinkStates(self.car, list(range(n)), computeForwardKinematics=True,
+                                                   physicsClientId=c)):
+            out[link] = pose_matrix(st[4], st[5])
+        return out
+
+    def visual_shapes(self) -> list[tuple]:
+        return list(self._pb.getVisualShapeData(self.car, physicsClientId=self.client))
+
+    def ray_down(self, xy_phys, z_from: float = 5.0) -> float | None:
+        """Height of the first surface below ``xy_phys`` (None if nothing is hit)."""
+        pb = self._pb
+        hit = pb.rayTest([xy_phys[0], xy_phys[1], z_from], [xy_phys[0], xy_phys[1], -z_from],
+                         physicsClientId=self.client)[0]
+        return None if hit[0] < 0 else float(hit[3][2])
+
+    def close(self) -> None:
+        if self.client >= 0:
+            try:
+                self._pb.disconnect(physicsClientId=self.client)
+            except Exception:  # pragma: no cover - already disconnected
+                pass
+            self.client = -1
+
+    def __del__(self):  # pragma: no cover - best effort
+        try:
+            self.close()
+        except Exception:
+            pass

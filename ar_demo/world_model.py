@@ -1,0 +1,119 @@
+"""World model of the AR demo: semi-dense map -> in-painted low-resolution grid -> collision mesh,
+built synchronously (:func:`build_world_model`) or in a worker thread (:class:`AsyncWorldModelBuilder`,
+Fig. 5.7: updated asynchronously at a lower rate than tracking).
+
+Thread ownership of :class:`AsyncWorldModelBuilder`:
+* caller thread: ``submit`` (replaces any pending job: only the newest map matters), ``poll``
+  (takes the newest finished model), ``close``;
+* worker thread: runs the builds; it only reads the submitted arrays (the caller hands over
+  copies and never writes them) and publishes each finished model under the lock.
+
+Imports: numpy, ar_demo (inpaint, mesh, ground), lite_vo (camera).
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from lite_vo.camera import PinholeIntrinsics
+
+from .ground import GroundPlane
+from .inpaint import InpaintResult, inpaint_map
+from .mesh import CollisionMesh, grid_mesh
+
+
+@dataclass
+class WorldModel:
+    frame_id: int
+    timestamp: float
+    T_world_cam: np.ndarray
+    grid_intrinsics: PinholeIntrinsics
+    inpaint: InpaintResult
+    mesh: CollisionMesh
+    build_ms: float
+
+
+def build_world_model(idepth: np.ndarray, idepth_var: np.ndarray, intrinsics: PinholeIntrinsics,
+                      T_world_cam: np.ndarray, ground: GroundPlane, cfg, frame_id: int = -1,
+                      timestamp: float = 0.0) -> WorldModel:
+    """In-paint the semi-dense map (NaN / non-positive idepth = empty) on the ground-plane prior
+    and turn the grid into a world-frame collision mesh."""
+    t0 = time.perf_counter()
+    gi = intrinsics.scaled(cfg.grid_width, cfg.grid_height)
+    prior = ground.idepth_grid(T_world_cam, gi)
+    res = inpaint_map(idepth, idepth_var, prior, cfg)
+    floor = cfg.mesh_idepth_floor_rel * res.scale
+    mesh = grid_mesh(res.idepth, gi, T_world_cam, cfg.max_depth_ratio, floor, frame_id, timestamp)
+    return WorldModel(frame_id, timestamp, np.array(T_world_cam, dtype=np.float64), gi, res, mesh,
+                      (time.perf_counter() - t0) * 1000.0)
+
+
+class AsyncWorldModelBuilder:
+    """Builds world models in one worker thread; the newest submitted job wins."""
+
+    def __init__(self, cfg, ground: GroundPlane):
+        self.cfg = cfg
+        self.ground = ground
+        self._cond = threading.Condition()
+        self._job: tuple | None = None          # guarded by _cond
+        self._result: WorldModel | None = None  # guarded by _cond
+        self._error: BaseException | None = None
+        self._stop = False
+        self.busy = False
+        self.built = 0
+        self.dropped = 0
+        self._thread = threading.Thread(target=self._run, name="ar-world-model", daemon=True)
+        self._thread.start()
+
+    def submit(self, idepth, idepth_var, intrinsics, T_world_cam, frame_id=-1, timestamp=0.0) -> None:
+        job = (np.array(idepth, dtype=np.float64), np.array(idepth_var, dtype=np.float64), intrinsics,
+               np.array(T_world_cam, dtype=np.float64), frame_id, timestamp)
+        with self._cond:
+            if self._job is not None:
+                self.dropped += 1
+            self._job = job
+            self._cond.notify_all()
+
+    def poll(self) -> WorldModel | None:
+        """The newest finished model since the last poll (None if none)."""
+        with self._cond:
+            if self._error is not None:
+                err, self._error = self._error, None
+                raise err
+            res, self._result = self._result, None
+            return res
+
+    def wait_idle(self, timeout: float | None = None) -> None:
+        """Block until no job is pending or running (used at the end and in deterministic runs)."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._job is None and not self.busy, timeout)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._job is not None or self._stop)
+                if self._stop:
+                    return
+                job, self._job = self._job, None
+                self.busy = True
+            try:
+                model = build_world_model(*job[:4], self.ground, self.cfg, job[4], job[5])
+            except BaseException as err:  # handed to the caller by poll()
+                model = None
+                with self._cond:
+                    self._error = err
+            with self._cond:
+                if model is not None:
+                    self._result = model
+                    self.built += 1
+                self.busy = False
+                self._cond.notify_all()
+
+    def close(self) -> None:
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        self._thread.join()
