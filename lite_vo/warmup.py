@@ -93,7 +93,7 @@ def warmup_module(module: str) -> ModuleWarmup:
     return ModuleWarmup(module, "ok", import_s, time.perf_counter() - t1)
 
 
-def warmup(modules: Iterable[str] = KERNEL_MODULES,
+def warmup(modules: Iterable[str] | None = None,
            on_result: Callable[[ModuleWarmup], None] | None = None) -> list[ModuleWarmup]:
     """Warm up every module in ``modules`` (default: all kernel modules), in order.
 
@@ -101,7 +101,7 @@ def warmup(modules: Iterable[str] = KERNEL_MODULES,
     :class:`ModuleWarmup` per module; check ``status == "error"`` for failures.
     """
     results = []
-    for module in modules:
+    for module in (KERNEL_MODULES if modules is None else modules):
         res = warmup_module(module)
         results.append(res)
         if on_result is not None:
