@@ -1,0 +1,642 @@
+"""numba kernels of the per-pixel inverse-depth filter (chapter 3.2 of the thesis).
+
+Owns: image gradients for mapping, the epipolar line search (`line_stereo`), the stereo
+observation pass over the whole map (`observe_kernel`), forward-warping propagation
+(`propagate_kernel`), regularisation (`regularize_kernel`) and hole filling (`fill_kernel`).
+Every threshold is an argument (mostly packed into the float64 parameter vector built by
+``lite_vo.mapping.depth_map.stereo_params``; the ``P_*`` constants below are only indices into
+it). Kernels never allocate per pixel; the public wrappers in ``depth_map.py`` validate inputs and
+allocate outputs.
+
+Map state layout (all HxW, one entry per pixel of the current frame):
+``idepth, idepth_var`` (float32, the filter state), ``idepth_s, var_s`` (float32, regularised
+values used for tracking and as stereo prior), ``valid`` (uint8), ``validity`` (float32 counter),
+``pos_x, pos_y`` (float32 sub-pixel location of the hypothesis), ``ref_id`` (int64, oldest frame
+id usable as stereo reference), ``blacklist`` (int32, decremented on removals/failed creations).
+
+Imports: numpy and numba only.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+# indices into the stereo parameter vector (layout fixed; values come from MappingConfig)
+P_MIN_GRAD = 0
+P_MIN_EPL_LENGTH = 1
+P_MIN_EPL_GRAD_SQ = 2
+P_MIN_EPL_ANGLE_COS = 3
+P_MAX_IDEPTH = 4          # 1 / min_depth
+P_MAX_EPL = 5
+P_MIN_EPL = 6
+P_SSD_MAX = 7
+P_SSD_GRAD_FACTOR = 8
+P_AMBIGUITY = 9
+P_MIN_SCALE = 10
+P_MAX_SCALE = 11
+P_SUBPIXEL = 12
+P_SIGMA_I2 = 13
+P_MAX_VAR = 14
+P_PRED_NOISE = 15
+P_FAIL_VAR_INC = 16
+P_BORDER_SAMPLES = 17
+P_MIN_CLIPPED_EPL = 18
+P_GEO_BASE = 19
+P_SUBPIX_VAR = 20
+P_NOSUBPIX_VAR = 21
+P_SEARCH_SIGMAS = 22
+P_DIFF_FAC_OBSERVE = 23
+P_VALIDITY_INC = 24
+P_VALIDITY_DEC = 25
+P_VALIDITY_MAX = 26
+P_VALIDITY_MAX_GRAD = 27
+P_OBSERVE_VALIDITY = 28
+P_CREATE_PRIOR = 29
+P_MIN_BLACKLIST = 30
+P_N = 31
+
+# return codes of line_stereo
+OK = 0
+OUT_OF_IMAGE = -1      # line (or the scale change) unusable with this reference: try a newer one
+BAD_MATCH = -2         # ambiguous match or negative depth
+NO_MATCH = -3          # matching error too high
+NUMERIC = -4           # NaN / inf / empty line
+TOO_LONG = -5          # full search line longer than max_epl: try a newer reference
+
+
+@njit(cache=True, nogil=True, fastmath=False, inline="always")
+def _bilinear(img, x, y):
+    """Bilinear sample; the caller guarantees 0 <= x < W-1 and 0 <= y < H-1."""
+    ix = int(x)
+    iy = int(y)
+    dx = x - ix
+    dy = y - iy
+    return ((1.0 - dx) * (1.0 - dy) * img[iy, ix] + dx * (1.0 - dy) * img[iy, ix + 1]
+            + (1.0 - dx) * dy * img[iy + 1, ix] + dx * dy * img[iy + 1, ix + 1])
+
+
+@njit(cache=True, nogil=True, fastmath=False, parallel=True)
+def gradients_kernel(img, gx, gy, maxgrad):
+    """Half central differences (0 on the 1-pixel border) and the 3x3 max filter of |g|."""
+    h, w = img.shape
+    mag = np.zeros((h, w), np.float32)
+    for y in prange(h):
+        for x in range(w):
+            if x == 0 or y == 0 or x == w - 1 or y == h - 1:
+                gx[y, x] = 0.0
+                gy[y, x] = 0.0
+                continue
+            a = 0.5 * (np.float64(img[y, x + 1]) - img[y, x - 1])
+            b = 0.5 * (np.float64(img[y + 1, x]) - img[y - 1, x])
+            gx[y, x] = a
+            gy[y, x] = b
+            mag[y, x] = math.sqrt(a * a + b * b)
+    for y in prange(h):
+        for x in range(w):
+            m = 0.0
+            for yy in range(max(y - 1, 0), min(y + 2, h)):
+                for xx in range(max(x - 1, 0), min(x + 2, w)):
+                    if mag[yy, xx] > m:
+                        m = mag[yy, xx]
+            maxgrad[y, x] = m
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def epipolar_direction(cur, x, y, px, py, c, fx, fy, cx, cy, prm):
+    """Epipolar direction at pixel (x, y) (sub-pixel position (px, py)) for a reference whose
+    centre is ``c`` in current-camera coordinates. Returns (ok, epx_unit, epy_unit)."""
+    epx = -fx * c[0] + c[2] * (px - cx)
+    epy = -fy * c[1] + c[2] * (py - cy)
+    len2 = epx * epx + epy * epy
+    # written so that NaN fails the test (the reference code's precedence slip let NaN through)
+    if not (len2 >= prm[P_MIN_EPL_LENGTH] * prm[P_MIN_EPL_LENGTH]):
+        return False, 0.0, 0.0
+    gxf = np.float64(cur[y, x + 1]) - cur[y, x - 1]
+    gyf = np.float64(cur[y + 1, x]) - cur[y - 1, x]
+    dot = gxf * epx + gyf * epy
+    eplgrad2 = dot * dot / len2
+    if not (eplgrad2 >= prm[P_MIN_EPL_GRAD_SQ]):
+        return False, 0.0, 0.0
+    g2 = gxf * gxf + gyf * gyf
+    if not (eplgrad2 >= prm[P_MIN_EPL_ANGLE_COS] * prm[P_MIN_EPL_ANGLE_COS] * g2):
+        return False, 0.0, 0.0
+    n = math.sqrt(len2)
+    return True, epx / n, epy / n
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, fy, cx, cy,
+                gxi, gyi, track_residual, prm, allow_long, samples, ssd):
+    """Search the epipolar line of current pixel (u, v) in ``ref``.
+
+    ``R, t`` = T_ref_cur; ``(epxn, epyn)`` unit epipolar direction in the current image;
+    ``(gxi, gyi)`` half-central-difference gradient at (u, v); ``samples``/``ssd`` scratch.
+    Returns (code, idepth, idepth_var, epl_length, error).
+    """
+    h, w = cur.shape
+    rx = (u - cx) / fx
+    ry = (v - cy) / fy
+    ax = R[0, 0] * rx + R[0, 1] * ry + R[0, 2]
+    ay = R[1, 0] * rx + R[1, 1] * ry + R[1, 2]
+    az = R[2, 0] * rx + R[2, 1] * ry + R[2, 2]
+    tx, ty, tz = t[0], t[1], t[2]
+    rescale = az + prior_id * tz
+    if not (rescale > prm[P_MIN_SCALE] and rescale < prm[P_MAX_SCALE]):
+        return OUT_OF_IMAGE, 0.0, 0.0, 0.0, 0.0
+    # the five samples in the current image, one (scaled) pixel apart along the line
+    sx = epxn * rescale
+    sy = epyn * rescale
+    first_x = u - 2.0 * sx
+    first_y = v - 2.0 * sy
+    last_x = u + 2.0 * sx
+    last_y = v + 2.0 * sy
+    if not (first_x > 0.0 and first_x < w - 2.0 and first_y > 0.0 and first_y < h - 2.0
+            and last_x > 0.0 and last_x < w - 2.0 and last_y > 0.0 and last_y < h - 2.0):
+        return OUT_OF_IMAGE, 0.0, 0.0, 0.0, 0.0
+    c0 = _bilinear(cur, u - 2.0 * sx, v - 2.0 * sy)
+    c1 = _bilinear(cur, u - sx, v - sy)
+    c2 = _bilinear(cur, u, v)
+    c3 = _bilinear(cur, u + sx, v + sy)
+    c4 = _bilinear(cur, u + 2.0 * sx, v + 2.0 * sy)
+
+    # far and near end of the inverse depth interval, projected into the reference
+    if az + max_id * tz < 0.001:
+        max_id = (0.001 - az) / tz
+    if az + min_id * tz < 0.001 or max_id < min_id:
+        return OUT_OF_IMAGE, 0.0, 0.0, 0.0, 0.0
+    zf = az + min_id * tz
+    far_x = fx * (ax + min_id * tx) / zf + cx
+    far_y = fy * (ay + min_id * ty) / zf + cy
+    zc = az + max_id * tz
+    close_x = fx * (ax + max_id * tx) / zc + cx
+    close_y = fy * (ay + max_id * ty) / zc + cy
+    if not (math.isfinite(far_x + far_y + close_x + close_y)):
+        return NUMERIC, 0.0, 0.0, 0.0, 0.0
+    incx = close_x - far_x
+    incy = close_y - far_y
+    epl_length = math.sqrt(incx * incx + incy * incy)
+    if not (epl_length > 0.0) or not math.isfinite(epl_length):
+        return NUMERIC, 0.0, 0.0, 0.0, 0.0
+    if epl_length > prm[P_MAX_EPL]:
+        if not allow_long:
+            return TOO_LONG, 0.0, 0.0, epl_length, 0.0
+        close_x = far_x + incx * prm[P_MAX_EPL] / epl_length
+        close_y = far_y + incy * prm[P_MAX_EPL] / epl_length
+    incx /= epl_length
+    incy /= epl_length
+    # one extra sample on each side, then pad short lines to the minimum length
+    far_x -= incx
+    far_y -= incy
+    close_x += incx
+    close_y += incy
+    if epl_length < prm[P_MIN_EPL]:
+        pad = 0.5 * (prm[P_MIN_EPL] - epl_length)
+        far_x -= incx * pad
+        far_y -= incy * pad
+        close_x += incx * pad
+        close_y += incy * pad
+    b = prm[P_BORDER_SAMPLES]
+    if far_x <= b or far_x >= w - b or far_y <= b or far_y >= h - b:
+        return OUT_OF_IMAGE, 0.0, 0.0, 0.0, 0.0
+    if close_x <= b or close_x >= w - b or close_y <= b or close_y >= h - b:
+        # clip the near end into the image along the line
+        if close_x <= b:
+            k = (b - close_x) / incx
+            close_x += k * incx
+            close_y += k * incy
+        elif close_x >= w - b:
+            k = (w - b - close_x) / incx
+            close_x += k * incx
+            close_y += k * incy
+        if close_y <= b:
+            k = (b - close_y) / incy
+            close_x += k * incx
+            close_y += k * incy
+        elif close_y >= h - b:
+            k = (h - b - close_y) / incy
+            close_x += k * incx
+            close_y += k * incy
+        dxl = close_x - far_x
+        dyl = close_y - far_y
+        if (not (close_x > b and close_x < w - b and close_y > b and close_y < h - b)
+                or not (math.sqrt(dxl * dxl + dyl * dyl) >= prm[P_MIN_CLIPPED_EPL])):
+            return OUT_OF_IMAGE, 0.0, 0.0, 0.0, 0.0
+    dxl = close_x - far_x
+    dyl = close_y - far_y
+    n_steps = int(math.sqrt(dxl * dxl + dyl * dyl) + 1e-6) + 1
+    if n_steps + 4 > samples.shape[0]:
+        n_steps = samples.shape[0] - 4
+    # reference samples at far + (j - 2) * inc, j = 0 .. n_steps + 3 (all inside by the border test)
+    for j in range(n_steps + 4):
+        samples[j] = _bilinear(ref, far_x + (j - 2) * incx, far_y + (j - 2) * incy)
+    best = 0
+    best_err = 1e50
+    for k in range(n_steps):
+        e0 = samples[k] - c0
+        e1 = samples[k + 1] - c1
+        e2 = samples[k + 2] - c2
+        e3 = samples[k + 3] - c3
+        e4 = samples[k + 4] - c4
+        ee = e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3 + e4 * e4
+        ssd[k] = ee
+        if ee < best_err:
+            best_err = ee
+            best = k
+    second_err = 1e50
+    for k in range(n_steps):
+        if abs(k - best) >= 2 and ssd[k] < second_err:
+            second_err = ssd[k]
+    if not (best_err <= 4.0 * prm[P_SSD_MAX]):
+        return NO_MATCH, 0.0, 0.0, epl_length, best_err
+    if prm[P_AMBIGUITY] * best_err > second_err:
+        return BAD_MATCH, 0.0, 0.0, epl_length, best_err
+
+    # sub-pixel: minimise |r_b + s (r_j - r_b)|^2 towards either neighbour (line ends handled)
+    pos = np.float64(best)
+    err = best_err
+    did_subpixel = False
+    if prm[P_SUBPIXEL] > 0.5:
+        best_side_err = best_err
+        best_side_pos = pos
+        for side in (-1, 1):
+            j = best + side
+            if j < 0 or j >= n_steps:
+                continue
+            rb0 = samples[best] - c0
+            rb1 = samples[best + 1] - c1
+            rb2 = samples[best + 2] - c2
+            rb3 = samples[best + 3] - c3
+            rb4 = samples[best + 4] - c4
+            rj0 = samples[j] - c0
+            rj1 = samples[j + 1] - c1
+            rj2 = samples[j + 2] - c2
+            rj3 = samples[j + 3] - c3
+            rj4 = samples[j + 4] - c4
+            bb = rb0 * rb0 + rb1 * rb1 + rb2 * rb2 + rb3 * rb3 + rb4 * rb4
+            bj = rb0 * rj0 + rb1 * rj1 + rb2 * rj2 + rb3 * rj3 + rb4 * rj4
+            jj = rj0 * rj0 + rj1 * rj1 + rj2 * rj2 + rj3 * rj3 + rj4 * rj4
+            den = bb - 2.0 * bj + jj
+            num = bb - bj
+            if den > 0.0 and num > 0.0:
+                s = num / den
+                if s < 1.0:
+                    e_s = bb - num * num / den
+                    if e_s < best_side_err:
+                        best_side_err = e_s
+                        best_side_pos = best + side * s
+        if best_side_pos != pos:
+            did_subpixel = True
+            pos = best_side_pos
+            err = best_side_err
+    grad_along = ((c1 - c0) * (c1 - c0) + (c2 - c1) * (c2 - c1) + (c3 - c2) * (c3 - c2)
+                  + (c4 - c3) * (c4 - c3))
+    if err > prm[P_SSD_MAX] + math.sqrt(grad_along) * prm[P_SSD_GRAD_FACTOR]:
+        return NO_MATCH, 0.0, 0.0, epl_length, err
+
+    bx = far_x + pos * incx
+    by = far_y + pos * incy
+    if incx * incx > incy * incy:
+        xn = (bx - cx) / fx
+        den = xn * tz - tx
+        idepth = (ax - xn * az) / den
+        alpha = incx / fx * (az * tx - ax * tz) / (den * den)
+    else:
+        yn = (by - cy) / fy
+        den = yn * tz - ty
+        idepth = (ay - yn * az) / den
+        alpha = incy / fy * (az * ty - ay * tz) / (den * den)
+    if not (idepth >= 0.0) or not math.isfinite(alpha):
+        return BAD_MATCH, 0.0, 0.0, epl_length, err
+    photo = 4.0 * prm[P_SIGMA_I2] / (grad_along + 1e-10)
+    e = prm[P_GEO_BASE] * (1.0 + track_residual)
+    gdot = gxi * epxn + gyi * epyn + 1e-10
+    geo = e * e * (gxi * gxi + gyi * gyi) / (gdot * gdot)
+    c = prm[P_SUBPIX_VAR] if did_subpixel else prm[P_NOSUBPIX_VAR]
+    var = alpha * alpha * (c + geo + photo)
+    return OK, idepth, var, epl_length, err
+
+
+@njit(cache=True, nogil=True, fastmath=False, parallel=True)
+def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c,
+                   ref_residual, idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x,
+                   pos_y, ref_id, blacklist, fx, fy, cx, cy, prm, stride, offset, scratch_len,
+                   status):
+    """One stereo pass over the map (in place). ``ref_*`` index the buffer oldest -> newest.
+
+    status per pixel: 0 not tried, 1 updated, 2 created, 3 inconsistent, 4 failed search
+    (no/bad match), 5 no usable reference/epipolar line, 6 removed (gradient too low).
+    """
+    h, w = cur.shape
+    nref = ref_slots.shape[0]
+    min_grad = prm[P_MIN_GRAD]
+    max_idepth_all = prm[P_MAX_IDEPTH]
+    for y in prange(3, h - 3):
+        samples = np.empty(scratch_len, np.float64)
+        ssd = np.empty(scratch_len, np.float64)
+        for x in range(3, w - 3):
+            status[y, x] = 0
+            has = valid[y, x] != 0
+            g = maxgrad[y, x]
+            if has and g < min_grad:
+                valid[y, x] = 0
+                status[y, x] = 6
+                continue
+            if g < min_grad or blacklist[y, x] < prm[P_MIN_BLACKLIST]:
+                continue
+            if stride > 1 and (y * w + x) % stride != offset:
+                continue
+            if nref == 0:
+                continue
+            if has:
+                px = np.float64(pos_x[y, x])
+                py = np.float64(pos_y[y, x])
+                prior = np.float64(idepth_s[y, x])
+                sd = math.sqrt(var_s[y, x])
+                lo = prior - prm[P_SEARCH_SIGMAS] * sd
+                hi = prior + prm[P_SEARCH_SIGMAS] * sd
+                if lo < 0.0:
+                    lo = 0.0
+                if hi > max_idepth_all:
+                    hi = max_idepth_all
+                b = 0
+                while b < nref - 1 and ref_ids[b] < ref_id[y, x]:
+                    b += 1
+            else:
+                px = np.float64(x)
+                py = np.float64(y)
+                prior = prm[P_CREATE_PRIOR]
+                lo = 0.0
+                hi = max_idepth_all
+                b = 0
+            code = OUT_OF_IMAGE
+            r_id = 0.0
+            r_var = 0.0
+            used = b
+            while b < nref:
+                slot = ref_slots[b]
+                ok, epxn, epyn = epipolar_direction(cur, x, y, px, py, ref_c[b], fx, fy, cx, cy, prm)
+                if not ok:
+                    code = NUMERIC
+                    break
+                gxi = _bilinear(gx, px, py)
+                gyi = _bilinear(gy, px, py)
+                code, r_id, r_var, r_len, r_err = line_stereo(
+                    cur, ref_images[slot], px, py, epxn, epyn, lo, prior, hi, ref_R[b], ref_t[b],
+                    fx, fy, cx, cy, gxi, gyi, ref_residual[b], prm, b == nref - 1, samples, ssd)
+                used = b
+                if code == OUT_OF_IMAGE or code == TOO_LONG:
+                    b += 1
+                    continue
+                break
+            if code == OUT_OF_IMAGE or code == TOO_LONG or code == NUMERIC:
+                status[y, x] = 5
+                continue
+            if not has:
+                if code == OK and r_var <= prm[P_MAX_VAR]:
+                    idepth[y, x] = r_id
+                    idepth_var[y, x] = r_var
+                    idepth_s[y, x] = r_id
+                    var_s[y, x] = r_var
+                    valid[y, x] = 1
+                    validity[y, x] = prm[P_OBSERVE_VALIDITY]
+                    pos_x[y, x] = px
+                    pos_y[y, x] = py
+                    ref_id[y, x] = ref_ids[used]
+                    status[y, x] = 2
+                elif code == BAD_MATCH or code == NO_MATCH:
+                    blacklist[y, x] -= 1
+                    status[y, x] = 4
+                continue
+            if code == BAD_MATCH or code == NO_MATCH:
+                # failed search: lower validity, move on to a newer reference frame
+                vnew = validity[y, x] - prm[P_VALIDITY_DEC]
+                validity[y, x] = vnew if vnew > 0.0 else 0.0
+                ref_id[y, x] = ref_ids[used] + 1
+                if code == BAD_MATCH:
+                    idepth_var[y, x] *= prm[P_FAIL_VAR_INC]
+                    if idepth_var[y, x] > prm[P_MAX_VAR]:
+                        valid[y, x] = 0
+                        blacklist[y, x] -= 1
+                status[y, x] = 4
+                continue
+            diff = r_id - prior
+            if prm[P_DIFF_FAC_OBSERVE] * diff * diff > r_var + var_s[y, x]:
+                idepth_var[y, x] *= prm[P_FAIL_VAR_INC]
+                if idepth_var[y, x] > prm[P_MAX_VAR]:
+                    valid[y, x] = 0
+                status[y, x] = 3
+                continue
+            # Kalman update (eq. 3.13) after inflating the prior by the prediction noise
+            pvar = idepth_var[y, x] * prm[P_PRED_NOISE]
+            wgt = r_var / (r_var + pvar)
+            idepth[y, x] = (1.0 - wgt) * r_id + wgt * idepth[y, x]
+            nvar = pvar * wgt
+            if nvar < idepth_var[y, x]:
+                idepth_var[y, x] = nvar
+            vmax = prm[P_VALIDITY_MAX] + g * prm[P_VALIDITY_MAX_GRAD] / 255.0
+            vnew = validity[y, x] + prm[P_VALIDITY_INC]
+            validity[y, x] = vnew if vnew < vmax else vmax
+            status[y, x] = 1
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id, img_old,
+                     img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, min_grad, diff_const2,
+                     diff_grad_mult, merge_fac, var_add, validity_cap,
+                     o_idepth, o_var, o_idepth_s, o_var_s, o_valid, o_validity, o_pos_x, o_pos_y,
+                     o_ref_id):
+    """Forward-warp every hypothesis into the new frame (serial: collisions). ``R, t`` = T_new_old.
+
+    Outputs must be zero-initialised (``o_valid`` all 0). Returns (kept, dropped_border,
+    dropped_intensity, occluded, fused).
+    """
+    h, w = idepth_s.shape
+    kept = 0
+    n_border = 0
+    n_int = 0
+    n_occ = 0
+    n_fused = 0
+    for y in range(h):
+        for x in range(w):
+            if valid[y, x] == 0:
+                continue
+            d = np.float64(idepth_s[y, x])
+            if not (d > 0.0):
+                n_border += 1
+                continue
+            px = np.float64(pos_x[y, x])
+            py = np.float64(pos_y[y, x])
+            rx = (px - cx) / fx
+            ry = (py - cy) / fy
+            qx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) / d + t[0]
+            qy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) / d + t[1]
+            qz = (R[2, 0] * rx + R[2, 1] * ry + R[2, 2]) / d + t[2]
+            if not (qz > 0.0):
+                n_border += 1
+                continue
+            d_new = 1.0 / qz
+            u = fx * qx * d_new + cx
+            v = fy * qy * d_new + cy
+            if not (u >= border and v >= border and u <= w - 1 - border and v <= h - 1 - border
+                    and u < w - 1 and v < h - 1 and u >= 0.0 and v >= 0.0):
+                n_border += 1
+                continue
+            ix = int(u + 0.5)
+            iy = int(v + 0.5)
+            g = np.float64(maxgrad_new[iy, ix])
+            if g < min_grad:
+                n_int += 1
+                continue
+            if px >= 0.0 and py >= 0.0 and px < w - 1 and py < h - 1:
+                src = _bilinear(img_old, px, py)
+            else:
+                src = np.float64(img_old[min(max(int(py + 0.5), 0), h - 1), min(max(int(px + 0.5), 0), w - 1)])
+            dst = _bilinear(img_new, u, v)
+            r = dst - src
+            if r * r / (diff_const2 + diff_grad_mult * g * g) > 1.0:
+                n_int += 1
+                continue
+            ratio = d_new / d
+            ratio *= ratio
+            new_var = ratio * ratio * idepth_var[y, x] + var_add
+            if o_valid[iy, ix] != 0:
+                other = np.float64(o_idepth[iy, ix])
+                diff = other - d_new
+                if merge_fac * diff * diff > new_var + o_var[iy, ix]:
+                    n_occ += 1
+                    if d_new < other:
+                        continue          # the new one is farther: occluded
+                    o_valid[iy, ix] = 0   # the new one is nearer: replaces
+            if o_valid[iy, ix] == 0:
+                o_idepth[iy, ix] = d_new
+                o_var[iy, ix] = new_var
+                o_validity[iy, ix] = validity[y, x]
+                o_pos_x[iy, ix] = u
+                o_pos_y[iy, ix] = v
+                o_ref_id[iy, ix] = ref_id[y, x]
+                o_valid[iy, ix] = 1
+                kept += 1
+            else:
+                ov = np.float64(o_var[iy, ix])
+                wgt = new_var / (ov + new_var)
+                o_idepth[iy, ix] = wgt * o_idepth[iy, ix] + (1.0 - wgt) * d_new
+                o_var[iy, ix] = 1.0 / (1.0 / ov + 1.0 / new_var)
+                mv = o_validity[iy, ix] + validity[y, x]
+                o_validity[iy, ix] = mv if mv < validity_cap else validity_cap
+                if ref_id[y, x] < o_ref_id[iy, ix]:
+                    o_ref_id[iy, ix] = ref_id[y, x]
+                n_fused += 1
+            o_idepth_s[iy, ix] = o_idepth[iy, ix]
+            o_var_s[iy, ix] = o_var[iy, ix]
+    return kept, n_border, n_int, n_occ, n_fused
+
+
+@njit(cache=True, nogil=True, fastmath=False, parallel=True)
+def regularize_kernel(idepth, idepth_var, valid, validity, blacklist, radius, dist_var, diff_fac,
+                      validity_th, o_idepth_s, o_var_s, o_valid):
+    """Inverse-variance weighted, edge-preserving smoothing of the valid hypotheses.
+
+    A neighbour counts when ``diff_fac * diff^2 <= var_a + var_b``; weight ``1/(var + dist_var*r^2)``.
+    A pixel whose compatible neighbours' validity sum is below ``validity_th`` is removed
+    (``o_valid = 0``, blacklist decremented). ``o_var_s`` = smallest compatible variance.
+    """
+    h, w = idepth.shape
+    for y in prange(h):
+        for x in range(w):
+            if valid[y, x] == 0:
+                o_valid[y, x] = 0
+                continue
+            dc = np.float64(idepth[y, x])
+            vc = np.float64(idepth_var[y, x])
+            s = 0.0
+            si = 0.0
+            vsum = 0.0
+            vmin = vc
+            for yy in range(max(y - radius, 0), min(y + radius + 1, h)):
+                for xx in range(max(x - radius, 0), min(x + radius + 1, w)):
+                    if valid[yy, xx] == 0:
+                        continue
+                    dn = np.float64(idepth[yy, xx])
+                    vn = np.float64(idepth_var[yy, xx])
+                    diff = dn - dc
+                    if diff_fac * diff * diff > vn + vc:
+                        continue
+                    vsum += validity[yy, xx]
+                    r2 = (xx - x) * (xx - x) + (yy - y) * (yy - y)
+                    iv = 1.0 / (vn + r2 * dist_var)
+                    s += dn * iv
+                    si += iv
+                    if vn < vmin:
+                        vmin = vn
+            if vsum < validity_th:
+                o_valid[y, x] = 0
+                blacklist[y, x] -= 1
+                continue
+            o_valid[y, x] = 1
+            o_idepth_s[y, x] = s / si
+            o_var_s[y, x] = vmin
+
+
+@njit(cache=True, nogil=True, fastmath=False, parallel=True)
+def fill_kernel(idepth, idepth_var, valid, validity, ref_id, blacklist, maxgrad, min_grad,
+                min_blacklist, create_th, unblacklist_th, new_var, new_validity,
+                o_idepth, o_var, o_idepth_s, o_var_s, o_valid, o_validity, o_pos_x, o_pos_y,
+                o_ref_id):
+    """Create hypotheses in empty pixels with gradient >= min_grad whose 5x5 validity sum
+    exceeds ``create_th`` (``unblacklist_th`` for pixels with blacklist < min_blacklist), as the
+    inverse-variance mean of the valid neighbours. Reads the inputs, writes only the ``o_*`` copies."""
+    h, w = idepth.shape
+    for y in prange(2, h - 2):
+        for x in range(2, w - 2):
+            if valid[y, x] != 0 or maxgrad[y, x] < min_grad:
+                continue
+            vs = 0.0
+            for yy in range(y - 2, y + 3):
+                for xx in range(x - 2, x + 3):
+                    if valid[yy, xx] != 0:
+                        vs += validity[yy, xx]
+            if not ((blacklist[y, x] >= min_blacklist and vs > create_th) or vs > unblacklist_th):
+                continue
+            s = 0.0
+            si = 0.0
+            rid = np.int64(-1)
+            for yy in range(y - 2, y + 3):
+                for xx in range(x - 2, x + 3):
+                    if valid[yy, xx] != 0:
+                        iv = 1.0 / idepth_var[yy, xx]
+                        s += idepth[yy, xx] * iv
+                        si += iv
+                        if rid < 0 or ref_id[yy, xx] < rid:
+                            rid = ref_id[yy, xx]
+            if not (si > 0.0):
+                continue
+            m = s / si
+            o_idepth[y, x] = m
+            o_idepth_s[y, x] = m
+            o_var[y, x] = new_var
+            o_var_s[y, x] = new_var
+            o_valid[y, x] = 1
+            o_validity[y, x] = new_validity
+            o_pos_x[y, x] = x
+            o_pos_y[y, x] = y
+            o_ref_id[y, x] = rid
+
+
+def warmup() -> None:
+    """Compile (and cache) every kernel of this module on tiny inputs."""
+    from .config import MappingConfig
+    from .depth_map import Mapper, MapFrame
+    from ..camera import PinholeIntrinsics
+    h, w = 24, 32
+    rng = np.random.default_rng(0)
+    img = (rng.random((h, w)) * 255).astype(np.float32)
+    K = PinholeIntrinsics(30.0, 30.0, 15.5, 11.5, w, h)
+    m = Mapper(MappingConfig(), K, seed=0)
+    T0 = np.eye(4)
+    T1 = np.eye(4)
+    T1[0, 3] = 0.01
+    m.initialize_random(MapFrame(0, 0.0, img, T0))
+    m.update(MapFrame(1, 0.033, img, T1))
+    m.update(MapFrame(1, 0.033, img, T1))

@@ -1,0 +1,443 @@
+"""The semi-dense depth map of the current frame and the :class:`Mapper` that maintains it.
+
+Owns: :class:`MapFrame` (one tracked frame handed to mapping), :class:`MappingStats`,
+:class:`Mapper` (map state, the bounded buffer of past frames used as stereo references,
+one mapping iteration = propagate + observe + regularise + fill) and :func:`depth_accuracy`.
+The per-pixel work is done by the numba kernels in ``_kernels.py``.
+
+Threading: a Mapper is owned by ONE thread (the mapping thread, or the caller in sync mode).
+All its members are written by that thread only; :meth:`Mapper.current` returns copies, so the
+arrays it hands out can be read by another thread (tracking) without locks.
+
+Imports: numpy, ``lite_vo.camera``, ``lite_vo.geometry``, ``lite_vo.errors`` and this package;
+never tracking, system, io or anything of the AR demo.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..camera import PinholeIntrinsics
+from ..errors import InputError
+from . import _kernels as K
+from .config import MappingConfig
+
+
+@dataclass(frozen=True)
+class MapFrame:
+    """A tracked frame at the mapping resolution (image float32 0..255, pose T_world_cam)."""
+    frame_id: int
+    timestamp: float
+    image: np.ndarray
+    T_world_cam: np.ndarray
+    tracking_residual: float = 0.0
+
+
+@dataclass
+class MappingStats:
+    """What one :meth:`Mapper.update` did. Times in ms; counts in pixels."""
+    frame_id: int = -1
+    stage_ms: dict = field(default_factory=dict)
+    propagated: int = 0         # hypotheses that survived propagation (after collisions)
+    dropped_border: int = 0
+    dropped_intensity: int = 0
+    occluded: int = 0
+    fused_on_propagation: int = 0
+    candidates: int = 0         # pixels with gradient >= min_grad
+    stride: int = 1             # candidate sub-sampling of the adaptive budget (1 = all)
+    updated: int = 0            # successful stereo fusions
+    created: int = 0            # new hypotheses from stereo
+    inconsistent: int = 0
+    failed: int = 0             # searches without a (good) match
+    no_reference: int = 0       # no usable epipolar line / reference
+    removed_gradient: int = 0
+    removed_regularize: int = 0
+    filled: int = 0
+    valid_count: int = 0
+    references: int = 0         # frames in the reference buffer
+
+    @property
+    def total_ms(self) -> float:
+        return float(sum(self.stage_ms.values()))
+
+
+def stereo_params(cfg: MappingConfig) -> np.ndarray:
+    """The float64 parameter vector of the stereo kernels (layout: ``_kernels.P_*``)."""
+    p = np.zeros(K.P_N, np.float64)
+    p[K.P_MIN_GRAD] = cfg.min_grad
+    p[K.P_MIN_EPL_LENGTH] = cfg.min_epl_length
+    p[K.P_MIN_EPL_GRAD_SQ] = cfg.min_epl_grad_sq
+    p[K.P_MIN_EPL_ANGLE_COS] = cfg.min_epl_angle_cos
+    p[K.P_MAX_IDEPTH] = 1.0 / cfg.min_depth
+    p[K.P_MAX_EPL] = cfg.max_epl_search
+    p[K.P_MIN_EPL] = cfg.min_epl_search
+    p[K.P_SSD_MAX] = cfg.ssd_max
+    p[K.P_SSD_GRAD_FACTOR] = cfg.ssd_grad_factor
+    p[K.P_AMBIGUITY] = cfg.ambiguity_factor
+    p[K.P_MIN_SCALE] = cfg.min_scale
+    p[K.P_MAX_SCALE] = cfg.max_scale
+    p[K.P_SUBPIXEL] = 1.0 if cfg.subpixel else 0.0
+    p[K.P_SIGMA_I2] = cfg.sigma_i ** 2
+    p[K.P_MAX_VAR] = cfg.max_var
+    p[K.P_PRED_NOISE] = cfg.prediction_noise
+    p[K.P_FAIL_VAR_INC] = cfg.fail_var_inflation
+    p[K.P_BORDER_SAMPLES] = cfg.search_border
+    p[K.P_MIN_CLIPPED_EPL] = cfg.min_clipped_epl
+    p[K.P_GEO_BASE] = cfg.geo_error_base
+    p[K.P_SUBPIX_VAR] = cfg.subpixel_var
+    p[K.P_NOSUBPIX_VAR] = cfg.no_subpixel_var
+    p[K.P_SEARCH_SIGMAS] = cfg.search_sigmas
+    p[K.P_DIFF_FAC_OBSERVE] = cfg.observe_diff_fac
+    p[K.P_VALIDITY_INC] = cfg.validity_inc
+    p[K.P_VALIDITY_DEC] = cfg.validity_dec
+    p[K.P_VALIDITY_MAX] = cfg.validity_max
+    p[K.P_VALIDITY_MAX_GRAD] = cfg.validity_max_grad
+    p[K.P_OBSERVE_VALIDITY] = cfg.observe_validity
+    p[K.P_CREATE_PRIOR] = cfg.create_prior_idepth
+    p[K.P_MIN_BLACKLIST] = cfg.min_blacklist
+    return p
+
+
+def image_gradients(image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(gx, gy, maxgrad): half central differences and the 3x3 max filter of their magnitude."""
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    if img.ndim != 2:
+        raise InputError(f"image_gradients: expected a 2-D image, got shape {img.shape}")
+    gx = np.zeros(img.shape, np.float32)
+    gy = np.zeros(img.shape, np.float32)
+    mg = np.zeros(img.shape, np.float32)
+    if img.shape[0] >= 1 and img.shape[1] >= 1:
+        K.gradients_kernel(img, gx, gy, mg)
+    return gx, gy, mg
+
+
+class _State:
+    """Per-pixel arrays of the map (layout documented in ``_kernels.py``)."""
+
+    def __init__(self, h: int, w: int):
+        self.idepth = np.zeros((h, w), np.float32)
+        self.idepth_var = np.zeros((h, w), np.float32)
+        self.idepth_s = np.zeros((h, w), np.float32)
+        self.var_s = np.zeros((h, w), np.float32)
+        self.valid = np.zeros((h, w), np.uint8)
+        self.validity = np.zeros((h, w), np.float32)
+        yy, xx = np.mgrid[0:h, 0:w]
+        self.pos_x = xx.astype(np.float32)
+        self.pos_y = yy.astype(np.float32)
+        self.ref_id = np.zeros((h, w), np.int64)
+        self.blacklist = np.zeros((h, w), np.int32)
+
+
+@dataclass
+class _Prepared:
+    frame: MapFrame
+    image: np.ndarray
+    gx: np.ndarray
+    gy: np.ndarray
+    maxgrad: np.ndarray
+
+
+class Mapper:
+    """Semi-dense inverse-depth filter for the newest tracked frame (no keyframes).
+
+    Owned by one thread (the mapping thread). Members:
+    ``config``, ``intrinsics`` (mapping resolution), ``state`` (per-pixel arrays),
+    ``_cur`` (the frame the map lives in, with its gradients), ``_buffer`` (past frames, oldest
+    first, images in the ring ``_buf_images``), ``_rng`` (seeded, random initialisation).
+    """
+
+    def __init__(self, config: MappingConfig, intrinsics0: PinholeIntrinsics, seed: int = 0):
+        self.config = config
+        self.intrinsics = intrinsics0
+        self.h, self.w = int(intrinsics0.height), int(intrinsics0.width)
+        if self.h < 1 or self.w < 1:
+            raise InputError(f"Mapper: invalid image size {self.w}x{self.h}")
+        self._rng = np.random.default_rng(seed)
+        self._params = stereo_params(config)
+        self.state = _State(self.h, self.w)
+        self._cur: _Prepared | None = None
+        self._buf_images = np.zeros((config.buffer_size, self.h, self.w), np.float32)
+        self._buffer: list[tuple[MapFrame, int]] = []   # (frame, slot), oldest first
+        self._iteration = 0
+        self._last_costs: dict | None = None
+        self.last_stats = MappingStats()
+
+    # ------------------------------------------------------------------ helpers
+    def _check_frame(self, frame: MapFrame) -> _Prepared:
+        img = np.ascontiguousarray(frame.image, dtype=np.float32)
+        if img.shape != (self.h, self.w):
+            raise InputError(f"Mapper: frame {frame.frame_id} image has shape {img.shape}, "
+                             f"expected {(self.h, self.w)} (mapping resolution)")
+        T = np.asarray(frame.T_world_cam, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InputError(f"Mapper: frame {frame.frame_id} has an invalid T_world_cam")
+        gx, gy, mg = image_gradients(img)
+        return _Prepared(frame, img, gx, gy, mg)
+
+    def _intr(self):
+        k = self.intrinsics
+        return float(k.fx), float(k.fy), float(k.cx), float(k.cy)
+
+    @property
+    def frame(self) -> MapFrame | None:
+        """The frame the current map lives in."""
+        return None if self._cur is None else self._cur.frame
+
+    # ------------------------------------------------------------------ initialisation
+    def _reset(self, prep: _Prepared) -> None:
+        self.state = _State(self.h, self.w)
+        self._buffer = []
+        self._cur = prep
+        self._iteration = 0
+        self._last_costs = None
+
+    def initialize_random(self, frame: MapFrame) -> None:
+        """Chapter 5.2: idepth = min + U(0, range), var = init_var for every pixel with gradient >= min_grad."""
+        prep = self._check_frame(frame)
+        self._reset(prep)
+        cfg, s = self.config, self.state
+        mask = prep.maxgrad >= cfg.min_grad
+        mask[:1, :] = False
+        mask[-1:, :] = False
+        mask[:, :1] = False
+        mask[:, -1:] = False
+        rnd = self._rng.random((self.h, self.w))
+        s.idepth[:] = np.where(mask, cfg.random_idepth_min + cfg.random_idepth_range * rnd, 0.0)
+        self._init_common(mask, cfg.init_var, frame.frame_id)
+
+    def initialize_from_depth(self, frame: MapFrame, depth_m: np.ndarray) -> None:
+        """Hypotheses from a depth image (0 / non-finite = invalid) at pixels with gradient >= min_grad."""
+        prep = self._check_frame(frame)
+        depth = np.asarray(depth_m, dtype=np.float64)
+        if depth.shape != (self.h, self.w):
+            raise InputError(f"Mapper: depth image has shape {depth.shape}, expected {(self.h, self.w)}")
+        self._reset(prep)
+        cfg, s = self.config, self.state
+        ok = np.isfinite(depth) & (depth > 0)
+        mask = ok & (prep.maxgrad >= cfg.min_grad)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s.idepth[:] = np.where(mask, 1.0 / np.where(ok, depth, 1.0), 0.0)
+        self._init_common(mask, cfg.depth_init_var, frame.frame_id)
+
+    def _init_common(self, mask: np.ndarray, var: float, frame_id: int) -> None:
+        s = self.state
+        s.idepth_var[:] = np.where(mask, var, 0.0)
+        s.idepth_s[:] = s.idepth
+        s.var_s[:] = s.idepth_var
+        s.valid[:] = mask
+        s.validity[:] = np.where(mask, self.config.init_validity, 0.0)
+        s.ref_id[:] = frame_id
+
+    # ------------------------------------------------------------------ one iteration
+    def update(self, frame: MapFrame) -> MappingStats:
+        """Propagate the map into ``frame`` (when it is new), stereo-update it against the
+        buffer, regularise and fill holes. Returns the iteration's :class:`MappingStats`."""
+        if self._cur is None:
+            raise InputError("Mapper.update: the map is not initialised (call initialize_random "
+                             "or initialize_from_depth first)")
+        stats = MappingStats(frame_id=int(frame.frame_id))
+        t0 = time.perf_counter()
+        if frame.frame_id != self._cur.frame.frame_id:
+            prep = self._check_frame(frame)
+            self._propagate(prep, stats)
+            self._push_reference(self._cur)
+            self._cur = prep
+        t1 = time.perf_counter()
+        self._observe(stats)
+        t2 = time.perf_counter()
+        self._regularize(stats)
+        t3 = time.perf_counter()
+        self._fill(stats)
+        t4 = time.perf_counter()
+        stats.stage_ms = {"propagate": 1e3 * (t1 - t0), "observe": 1e3 * (t2 - t1),
+                          "regularize": 1e3 * (t3 - t2), "fill": 1e3 * (t4 - t3)}
+        stats.valid_count = int(np.count_nonzero(self.state.valid))
+        stats.references = len(self._buffer)
+        self._last_costs = {"observe_ms": stats.stage_ms["observe"],
+                            "other_ms": stats.total_ms - stats.stage_ms["observe"],
+                            "searched": max(stats.updated + stats.created + stats.inconsistent
+                                            + stats.failed + stats.no_reference, 1)}
+        self._iteration += 1
+        self.last_stats = stats
+        return stats
+
+    def add_reference(self, frame: MapFrame) -> None:
+        """Add a tracked frame that is not mapped into the stereo reference buffer."""
+        if self._cur is not None and frame.frame_id == self._cur.frame.frame_id:
+            return
+        self._push_reference(self._check_frame(frame))
+
+    def _push_reference(self, prep: _Prepared) -> None:
+        if any(f.frame_id == prep.frame.frame_id for f, _ in self._buffer):
+            return
+        if len(self._buffer) >= self.config.buffer_size:
+            _, slot = self._buffer.pop(0)
+        else:
+            used = {s for _, s in self._buffer}
+            slot = next(i for i in range(self.config.buffer_size) if i not in used)
+        self._buf_images[slot] = prep.image
+        self._buffer.append((prep.frame, slot))
+        self._buffer.sort(key=lambda e: e[0].frame_id)
+
+    def _propagate(self, new: _Prepared, stats: MappingStats) -> None:
+        cfg, old = self.config, self.state
+        T_new_old = np.linalg.inv(new.frame.T_world_cam) @ np.asarray(self._cur.frame.T_world_cam, np.float64)
+        R = np.ascontiguousarray(T_new_old[:3, :3])
+        t = np.ascontiguousarray(T_new_old[:3, 3])
+        ns = _State(self.h, self.w)
+        ns.blacklist[:] = old.blacklist     # blacklist stays with the pixel location
+        fx, fy, cx, cy = self._intr()
+        cap = cfg.validity_max + cfg.validity_max_grad
+        res = K.propagate_kernel(
+            old.idepth_s, old.idepth_var, old.valid, old.validity, old.pos_x, old.pos_y, old.ref_id,
+            self._cur.image, new.image, new.maxgrad, R, t, fx, fy, cx, cy, float(cfg.border),
+            float(cfg.min_grad), float(cfg.prop_diff_const) ** 2, float(cfg.prop_diff_grad_fac),
+            float(cfg.prop_merge_fac), float(cfg.propagation_sigma), float(cap),
+            ns.idepth, ns.idepth_var, ns.idepth_s, ns.var_s, ns.valid, ns.validity, ns.pos_x,
+            ns.pos_y, ns.ref_id)
+        # pixels without a hypothesis keep their integer position
+        empty = ns.valid == 0
+        yy, xx = np.nonzero(empty)
+        ns.pos_x[yy, xx] = xx
+        ns.pos_y[yy, xx] = yy
+        self.state = ns
+        stats.propagated = int(np.count_nonzero(ns.valid))
+        _, stats.dropped_border, stats.dropped_intensity, stats.occluded, stats.fused_on_propagation = map(int, res)
+
+    def _reference_arrays(self):
+        n = len(self._buffer)
+        slots = np.zeros(n, np.int64)
+        ids = np.zeros(n, np.int64)
+        Rs = np.zeros((n, 3, 3))
+        ts = np.zeros((n, 3))
+        cs = np.zeros((n, 3))
+        res = np.zeros(n)
+        T_world_cur = np.asarray(self._cur.frame.T_world_cam, np.float64)
+        for i, (f, slot) in enumerate(self._buffer):
+            T_ref_cur = np.linalg.inv(np.asarray(f.T_world_cam, np.float64)) @ T_world_cur
+            slots[i], ids[i] = slot, f.frame_id
+            Rs[i] = T_ref_cur[:3, :3]
+            ts[i] = T_ref_cur[:3, 3]
+            cs[i] = -T_ref_cur[:3, :3].T @ T_ref_cur[:3, 3]      # reference centre in the current frame
+            res[i] = f.tracking_residual
+        return slots, ids, Rs, ts, cs, res
+
+    def _budget_stride(self, n_cand: int) -> int:
+        """Chapter 3.4: sub-sample the candidates (rotating offset) so observe fits the budget,
+        from the cost per searched pixel of the previous iteration."""
+        budget = self.config.budget_ms
+        if budget <= 0 or self._last_costs is None or n_cand <= 0:
+            return 1
+        lc = self._last_costs
+        per = lc["observe_ms"] / lc["searched"]
+        if not per > 0:
+            return 1
+        allowed = max((budget - lc["other_ms"]) / per, 1.0)
+        expected = lc["searched"] * max(self.last_stats.stride, 1)   # searches without sub-sampling
+        return max(1, int(np.ceil(expected / allowed)))
+
+    def _observe(self, stats: MappingStats) -> None:
+        cur, s, cfg = self._cur, self.state, self.config
+        n_cand = int(np.count_nonzero(cur.maxgrad >= cfg.min_grad))
+        stats.candidates = n_cand
+        stride = self._budget_stride(n_cand)
+        stats.stride = stride
+        status = np.zeros((self.h, self.w), np.int8)
+        if len(self._buffer) > 0 and self.h > 6 and self.w > 6:
+            slots, ids, Rs, ts, cs, res = self._reference_arrays()
+            fx, fy, cx, cy = self._intr()
+            scratch = int(cfg.max_epl_search + cfg.min_epl_search) + 16
+            K.observe_kernel(cur.image, cur.gx, cur.gy, cur.maxgrad, self._buf_images, slots, ids,
+                             Rs, ts, cs, res, s.idepth, s.idepth_var, s.idepth_s, s.var_s, s.valid,
+                             s.validity, s.pos_x, s.pos_y, s.ref_id, s.blacklist, fx, fy, cx, cy,
+                             self._params, int(stride), int(self._iteration % stride), scratch,
+                             status)
+        counts = np.bincount(status.ravel().astype(np.int64), minlength=7)
+        stats.updated, stats.created, stats.inconsistent = int(counts[1]), int(counts[2]), int(counts[3])
+        stats.failed, stats.no_reference, stats.removed_gradient = int(counts[4]), int(counts[5]), int(counts[6])
+
+    def _regularize(self, stats: MappingStats) -> None:
+        s, cfg = self.state, self.config
+        o_valid = np.zeros_like(s.valid)
+        n_before = int(np.count_nonzero(s.valid))
+        K.regularize_kernel(s.idepth, s.idepth_var, s.valid, s.validity, s.blacklist,
+                            int(cfg.reg_radius), float(cfg.reg_dist_var), float(cfg.reg_diff_fac),
+                            float(cfg.reg_validity_sum), s.idepth_s, s.var_s, o_valid)
+        s.valid = o_valid
+        stats.removed_regularize = n_before - int(np.count_nonzero(o_valid))
+
+    def _fill(self, stats: MappingStats) -> None:
+        s, cfg, cur = self.state, self.config, self._cur
+        o = [a.copy() for a in (s.idepth, s.idepth_var, s.idepth_s, s.var_s, s.valid, s.validity,
+                                s.pos_x, s.pos_y, s.ref_id)]
+        n_before = int(np.count_nonzero(s.valid))
+        K.fill_kernel(s.idepth, s.idepth_var, s.valid, s.validity, s.ref_id, s.blacklist,
+                      cur.maxgrad, float(cfg.min_grad), int(cfg.min_blacklist),
+                      float(cfg.fill_validity_sum), float(cfg.unblacklist_validity_sum),
+                      float(cfg.init_var), float(cfg.fill_validity), *o)
+        (s.idepth, s.idepth_var, s.idepth_s, s.var_s, s.valid, s.validity, s.pos_x, s.pos_y,
+         s.ref_id) = o
+        stats.filled = int(np.count_nonzero(s.valid)) - n_before
+
+    # ------------------------------------------------------------------ output
+    def current(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(idepth, idepth_var, valid) of the map in :attr:`frame` (copies; regularised values;
+        0 where invalid)."""
+        s = self.state
+        valid = s.valid != 0
+        return (np.where(valid, s.idepth_s, 0.0).astype(np.float32),
+                np.where(valid, s.var_s, 0.0).astype(np.float32), valid)
+
+    def rescale(self, factor: float) -> None:
+        """Multiply every idepth by ``factor`` (variances by factor^2) and divide the translations
+        of the current frame and of every buffered frame by it (the world is rescaled about its origin)."""
+        f = float(factor)
+        if not (np.isfinite(f) and f > 0):
+            raise InputError(f"Mapper.rescale: factor must be a positive number, got {factor!r}")
+        s = self.state
+        for a in (s.idepth, s.idepth_s):
+            a *= f
+        for a in (s.idepth_var, s.var_s):
+            a *= f * f
+
+        def scaled(fr: MapFrame) -> MapFrame:
+            T = np.array(fr.T_world_cam, dtype=np.float64)
+            T[:3, 3] /= f
+            return MapFrame(fr.frame_id, fr.timestamp, fr.image, T, fr.tracking_residual)
+
+        self._buffer = [(scaled(fr), slot) for fr, slot in self._buffer]
+        if self._cur is not None:
+            self._cur = _Prepared(scaled(self._cur.frame), self._cur.image, self._cur.gx,
+                                  self._cur.gy, self._cur.maxgrad)
+
+    def mean_idepth(self) -> float:
+        """Mean inverse depth of the valid hypotheses (NaN when the map is empty)."""
+        s = self.state
+        v = s.valid != 0
+        return float(np.mean(s.idepth_s[v])) if np.any(v) else float("nan")
+
+
+def depth_accuracy(idepth: np.ndarray, valid: np.ndarray, depth_gt_m: np.ndarray) -> dict:
+    """Accuracy of a semi-dense map against a depth image.
+
+    density: share of ALL pixels with a hypothesis; the error statistics compare 1/idepth with the
+    ground truth where it is > 0 (and finite): median absolute relative error, share within 5% / 10%.
+    """
+    idepth = np.asarray(idepth, dtype=np.float64)
+    valid = np.asarray(valid, dtype=bool)
+    gt = np.asarray(depth_gt_m, dtype=np.float64)
+    if idepth.shape != valid.shape or idepth.shape != gt.shape:
+        raise InputError(f"depth_accuracy: shapes differ: idepth {idepth.shape}, valid {valid.shape}, "
+                         f"depth {gt.shape}")
+    n = idepth.size
+    density = float(np.count_nonzero(valid)) / n if n else 0.0
+    m = valid & np.isfinite(gt) & (gt > 0) & np.isfinite(idepth) & (idepth > 0)
+    if not np.any(m):
+        return {"density": density, "median_abs_rel_error": float("nan"),
+                "within_5pct": 0.0, "within_10pct": 0.0, "compared": 0}
+    rel = np.abs(1.0 / idepth[m] - gt[m]) / gt[m]
+    return {"density": density, "median_abs_rel_error": float(np.median(rel)),
+            "within_5pct": float(np.mean(rel <= 0.05)), "within_10pct": float(np.mean(rel <= 0.10)),
+            "compared": int(m.sum())}
