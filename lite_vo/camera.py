@@ -91,6 +91,9 @@ def _undistort_radtan(xd: np.ndarray, yd: np.ndarray, k: tuple, iterations: int 
             dy = (-j10 * fx_ + j00 * fy_) / det
         x = x - dx
         y = y - dy
+        with np.errstate(invalid="ignore"):
+            if not (np.abs(dx) > 1e-15).any() and not (np.abs(dy) > 1e-15).any():
+                break
     with np.errstate(invalid="ignore", over="ignore"):
         xr, yr = _distort_radtan(x, y, k)
         bad = ~(np.hypot(xr - xd, yr - yd) < 1e-9 * (1.0 + np.hypot(xd, yd)))
