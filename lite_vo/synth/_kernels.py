@@ -1,0 +1,277 @@
+"""numba kernels of the synthetic renderer: an exact ray caster of axis-aligned boxes.
+
+Owns the hot loop only (ray casting, mip-mapped texture sampling). Scene layout, texture
+generation and validation live in :mod:`lite_vo.synth.scenes` / :mod:`lite_vo.synth.render`.
+Imports numpy and numba only. Thresholds are arguments (numba freezes globals).
+
+Face numbering: the room box (seen from inside) has faces 0..5, solid box ``b`` has faces
+``6 + 6 b + 0..5``; inside a box, face ``2 * axis + side`` (side 0: the ``lo`` face, 1: ``hi``).
+A face's texture coordinates are the world coordinates of the two other axes,
+``((axis + 1) % 3, (axis + 2) % 3)``, minus the face's ``tex_origin``, in texels of ``tex_texel``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+
+@njit(cache=True, nogil=True)
+def cast_ray(ox, oy, oz, dx, dy, dz, room_lo, room_hi, box_lo, box_hi, t_min, pu, pv, box_px):
+    """Nearest hit ``(t, face)`` of the ray ``o + t d`` (t > t_min); face -1 if nothing is hit.
+
+    ``(pu, pv)``: the ray's pixel coordinates; box ``b`` is skipped when they lie outside its
+    conservative screen rectangle ``box_px[b] = (u_min, u_max, v_min, v_max)`` (culling only:
+    pass +-inf rectangles to test every box)."""
+    o = (ox, oy, oz)
+    d = (dx, dy, dz)
+    t_best = np.inf
+    face = -1
+    # room: the ray leaves the room box through the nearest exit plane
+    for a in range(3):
+        da = d[a]
+        if da > 0.0:
+            t = (room_hi[a] - o[a]) / da
+            side = 1
+        elif da < 0.0:
+            t = (room_lo[a] - o[a]) / da
+            side = 0
+        else:
+            continue
+        if t > t_min and t < t_best:
+            t_best = t
+            face = 2 * a + side
+    # solid boxes: slab test, entry face
+    for b in range(box_lo.shape[0]):
+        if pu < box_px[b, 0] or pu > box_px[b, 1] or pv < box_px[b, 2] or pv > box_px[b, 3]:
+            continue
+        t_near = -np.inf
+        t_far = np.inf
+        ax_near = -1
+        side_near = 0
+        miss = False
+        for a in range(3):
+            da = d[a]
+            lo = box_lo[b, a]
+            hi = box_hi[b, a]
+            if da == 0.0:
+                if o[a] < lo or o[a] > hi:
+                    miss = True
+                    break
+                continue
+            t0 = (lo - o[a]) / da
+            t1 = (hi - o[a]) / da
+            if da > 0.0:
+                enter = t0
+                leave = t1
+                side = 0
+            else:
+                enter = t1
+                leave = t0
+                side = 1
+            if enter > t_near:
+                t_near = enter
+                ax_near = a
+                side_near = side
+            if leave < t_far:
+                t_far = leave
+        if miss or ax_near < 0 or t_near > t_far or t_near <= t_min:
+            continue
+        if t_near < t_best:
+            t_best = t_near
+            face = 6 + 6 * b + 2 * ax_near + side_near
+    return t_best, face
+
+
+@njit(cache=True, nogil=True)
+def sample_level(tex_data, off, w, h, x, y):
+    """Bilinear sample at texel coordinates (x, y) (texel centres at integers), clamped to the edge."""
+    if x < 0.0:
+        x = 0.0
+    elif x > w - 1.0:
+        x = w - 1.0
+    if y < 0.0:
+        y = 0.0
+    elif y > h - 1.0:
+        y = h - 1.0
+    x0 = int(x)
+    y0 = int(y)
+    if x0 > w - 2:
+        x0 = max(w - 2, 0)
+    if y0 > h - 2:
+        y0 = max(h - 2, 0)
+    fx = x - x0
+    fy = y - y0
+    x1 = min(x0 + 1, w - 1)
+    y1 = min(y0 + 1, h - 1)
+    v00 = tex_data[off + y0 * w + x0]
+    v01 = tex_data[off + y0 * w + x1]
+    v10 = tex_data[off + y1 * w + x0]
+    v11 = tex_data[off + y1 * w + x1]
+    return ((1.0 - fy) * ((1.0 - fx) * v00 + fx * v01) + fy * ((1.0 - fx) * v10 + fx * v11))
+
+
+@njit(cache=True, nogil=True)
+def shade_hit(px, py, pz, dx, dy, dz, face, depth, sample_px, tex_data, tex_meta, tex_nlev,
+              tex_origin, tex_texel, lod_bias, min_cos):
+    """Trilinear (mip-mapped) texture value of the hit point p on ``face``.
+
+    ``sample_px``: size of one sample at unit depth (1 / (f * ss)); the footprint on the surface
+    is ``depth * sample_px / sqrt(|cos|)`` (area-based level of detail).
+    """
+    a = (face % 6) // 2
+    p = (px, py, pz)
+    d = (dx, dy, dz)
+    s_m = p[(a + 1) % 3] - tex_origin[face, 0]
+    t_m = p[(a + 2) % 3] - tex_origin[face, 1]
+    norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+    c = abs(d[a]) / norm
+    if c < min_cos:
+        c = min_cos
+    texel = tex_texel[face]
+    footprint = depth * sample_px * norm / math.sqrt(c)
+    nlev = tex_nlev[face]
+    lod = math.log2(max(footprint / texel, 1e-6)) + lod_bias
+    if lod < 0.0:
+        lod = 0.0
+    if lod > nlev - 1.0:
+        lod = nlev - 1.0
+    l0 = int(lod)
+    if l0 > nlev - 2:
+        l0 = max(nlev - 2, 0)
+    frac = lod - l0
+    l1 = min(l0 + 1, nlev - 1)
+    scale0 = 1.0 / (texel * (1 << l0))
+    v0 = sample_level(tex_data, tex_meta[face, l0, 0], tex_meta[face, l0, 1],
+                      tex_meta[face, l0, 2], s_m * scale0 - 0.5, t_m * scale0 - 0.5)
+    if frac <= 0.0 or l1 == l0:
+        return v0
+    scale1 = 1.0 / (texel * (1 << l1))
+    v1 = sample_level(tex_data, tex_meta[face, l1, 0], tex_meta[face, l1, 1],
+                      tex_meta[face, l1, 2], s_m * scale1 - 0.5, t_m * scale1 - 0.5)
+    return (1.0 - frac) * v0 + frac * v1
+
+
+@njit(cache=True, nogil=True)
+def _pixel_ray(R, xs, ys):
+    return (R[0, 0] * xs + R[0, 1] * ys + R[0, 2], R[1, 0] * xs + R[1, 1] * ys + R[1, 2],
+            R[2, 0] * xs + R[2, 1] * ys + R[2, 2])
+
+
+@njit(cache=True, nogil=True)
+def render_rows_centre(row_lo, row_hi, R, t, fx, fy, cx, cy, room_lo, room_hi, box_lo, box_hi,
+                       box_px, tex_data, tex_meta, tex_nlev, tex_origin, tex_texel, lod_bias,
+                       min_cos, t_min, out_img, out_depth, out_face):
+    """Serial kernel, pass 1 for rows [row_lo, row_hi): the ray through each pixel centre gives
+    the z-depth, the face and a texture value filtered over one pixel footprint."""
+    width = out_img.shape[1]
+    sample_px = 1.0 / (0.5 * (fx + fy))
+    ox, oy, oz = t[0], t[1], t[2]
+    for v in range(row_lo, row_hi):
+        yc = (v - cy) / fy
+        for u in range(width):
+            dx, dy, dz = _pixel_ray(R, (u - cx) / fx, yc)
+            tc, fc = cast_ray(ox, oy, oz, dx, dy, dz, room_lo, room_hi, box_lo, box_hi, t_min,
+                              u, v, box_px)
+            out_face[v, u] = fc
+            if fc < 0:
+                out_depth[v, u] = 0.0
+                out_img[v, u] = 0.0
+                continue
+            out_depth[v, u] = tc
+            out_img[v, u] = shade_hit(ox + tc * dx, oy + tc * dy, oz + tc * dz, dx, dy, dz, fc,
+                                      tc, sample_px, tex_data, tex_meta, tex_nlev, tex_origin,
+                                      tex_texel, lod_bias, min_cos)
+
+
+@njit(cache=True, nogil=True)
+def render_rows_refine(row_lo, row_hi, R, t, fx, fy, cx, cy, ss, adaptive, room_lo, room_hi,
+                       box_lo, box_hi, box_px, tex_data, tex_meta, tex_nlev, tex_origin,
+                       tex_texel, lod_bias, min_cos, t_min, face, out_img):
+    """Serial kernel, pass 2: replace a pixel by the mean of ss x ss sub-pixel samples (each
+    filtered over its own footprint) - every pixel, or with ``adaptive`` only pixels whose 3x3
+    neighbourhood sees more than one face (geometric edges; textures are already band-limited
+    by the mip-maps)."""
+    height, width = out_img.shape
+    inv_ss = 1.0 / ss
+    sample_px = 1.0 / (0.5 * (fx + fy) * ss)
+    ox, oy, oz = t[0], t[1], t[2]
+    for v in range(row_lo, row_hi):
+        for u in range(width):
+            if adaptive:
+                f0 = face[v, u]
+                edge = False
+                for nv in range(max(v - 1, 0), min(v + 2, height)):
+                    for nu in range(max(u - 1, 0), min(u + 2, width)):
+                        if face[nv, nu] != f0:
+                            edge = True
+                if not edge:
+                    continue
+            acc = 0.0
+            for sy in range(ss):
+                py_ = v - 0.5 + (sy + 0.5) * inv_ss
+                ys = (py_ - cy) / fy
+                for sx in range(ss):
+                    px_ = u - 0.5 + (sx + 0.5) * inv_ss
+                    dx, dy, dz = _pixel_ray(R, (px_ - cx) / fx, ys)
+                    th, fh = cast_ray(ox, oy, oz, dx, dy, dz, room_lo, room_hi, box_lo, box_hi,
+                                      t_min, px_, py_, box_px)
+                    if fh < 0:
+                        continue
+                    acc += shade_hit(ox + th * dx, oy + th * dy, oz + th * dz, dx, dy, dz, fh,
+                                     th, sample_px, tex_data, tex_meta, tex_nlev, tex_origin,
+                                     tex_texel, lod_bias, min_cos)
+            out_img[v, u] = acc * inv_ss * inv_ss
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def render_image(R, t, fx, fy, cx, cy, ss, adaptive, room_lo, room_hi, box_lo, box_hi, box_px,
+                 tex_data, tex_meta, tex_nlev, tex_origin, tex_texel, lod_bias, min_cos, t_min,
+                 n_bands, out_img, out_depth, out_face):
+    """prange driver over row bands. ``R, t``: T_world_cam; outputs are written in place:
+    ``out_img`` (H, W) float32 anti-aliased intensity, ``out_depth`` z-depth (m) of the
+    pixel-centre ray (0 if nothing is hit), ``out_face`` the face index of that ray (-1: none).
+    ``ss`` > 1 supersamples every pixel, or only geometric edges when ``adaptive``."""
+    height = out_img.shape[0]
+    band = (height + n_bands - 1) // n_bands
+    for k in prange(n_bands):
+        lo = k * band
+        hi = min(height, lo + band)
+        if lo < hi:
+            render_rows_centre(lo, hi, R, t, fx, fy, cx, cy, room_lo, room_hi, box_lo, box_hi,
+                               box_px, tex_data, tex_meta, tex_nlev, tex_origin, tex_texel,
+                               lod_bias, min_cos, t_min, out_img, out_depth, out_face)
+    if ss > 1:
+        for k in prange(n_bands):
+            lo = k * band
+            hi = min(height, lo + band)
+            if lo < hi:
+                render_rows_refine(lo, hi, R, t, fx, fy, cx, cy, ss, adaptive, room_lo,
+                                   room_hi, box_lo, box_hi, box_px, tex_data, tex_meta,
+                                   tex_nlev, tex_origin, tex_texel, lod_bias, min_cos, t_min,
+                                   out_face, out_img)
+
+
+def warmup() -> None:
+    """Compile (and cache) the kernels on a tiny scene."""
+    room_lo = np.array([-1.0, -1.0, 0.0])
+    room_hi = np.array([1.0, 1.0, 2.0])
+    box_lo = np.array([[-0.2, -0.2, 0.0]])
+    box_hi = np.array([[0.2, 0.2, 0.3]])
+    n_faces = 12
+    tex_data = np.arange(16, dtype=np.float32)
+    tex_meta = np.zeros((n_faces, 2, 3), dtype=np.int64)
+    tex_meta[:, 0] = (0, 4, 4)
+    tex_meta[:, 1] = (0, 2, 2)
+    tex_nlev = np.full(n_faces, 2, dtype=np.int64)
+    tex_origin = np.zeros((n_faces, 2))
+    tex_texel = np.full(n_faces, 0.5)
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    t = np.array([0.0, -0.8, 1.0])
+    img = np.zeros((4, 6), np.float32)
+    depth = np.zeros((4, 6), np.float32)
+    face = np.zeros((4, 6), np.int32)
+    box_px = np.array([[-np.inf, np.inf, -np.inf, np.inf]])
+    render_image(R, t, 5.0, 5.0, 2.5, 1.5, 2, True, room_lo, room_hi, box_lo, box_hi, box_px, tex_data,
+                 tex_meta, tex_nlev, tex_origin, tex_texel, 0.0, 0.1, 1e-6, 2, img, depth, face)
