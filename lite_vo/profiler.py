@@ -42,6 +42,9 @@ PAPER_PROFILES: tuple[str, ...] = ("desktop", "m640_t320", "m320_t320", "phone",
 #: Files a finished run must have written.
 RUN_FILES: tuple[str, ...] = ("trajectory.txt", "timing.json", "run.json")
 
+#: run.json statuses of a run that finished tracking (losses are judged from the frame counts).
+OK_STATUSES: tuple[str, ...] = ("ok", "ok_with_losses")
+
 #: Initialisation success criterion (thesis chapter 5.4).
 INIT_DEPTH_ERROR_MAX = 0.16      # mean relative depth error after INIT_DEPTH_AT_S seconds
 INIT_DEPTH_AT_S = 3.0
@@ -506,15 +509,36 @@ def run_is_metric(run_json: dict, sequence: str | None = None) -> bool:
     return False
 
 
-def depth_error_series(run_json: dict) -> list[dict]:
-    """Per-frame depth accuracy ``[{"t": s, "median_abs_rel_error": x, ...}]`` if the run stored it."""
+def depth_error_series(run_json: dict, run_dir: Path | None = None) -> list[dict]:
+    """Per-frame depth accuracy ``[{"t": s, "median_abs_rel_error": x, ...}]`` if the run stored it
+    (``depth_accuracy.json`` in the run folder, or a list inside ``run.json``).
+
+    When the entries carry a scale-aligned error (``median_abs_rel_error_aligned``, the error
+    after choosing the optimal scale, needed for random initialisation), it replaces
+    ``median_abs_rel_error`` (the raw value is kept as ``median_abs_rel_error_raw``).
+    """
     da = run_json.get("depth_accuracy") or {}
-    candidates = [run_json.get("depth_accuracy_series")]
+    candidates = []
+    if run_dir is not None and (Path(run_dir) / "depth_accuracy.json").is_file():
+        try:
+            with open(Path(run_dir) / "depth_accuracy.json", encoding="utf-8") as fh:
+                candidates.append(json.load(fh))
+        except (OSError, ValueError):
+            pass
+    candidates.append(run_json.get("depth_accuracy_series"))
     if isinstance(da, dict):
         candidates += [da.get("series"), da.get("frames")]
     for c in candidates:
         if isinstance(c, list) and c and all(isinstance(x, dict) for x in c):
-            out = [x for x in c if "t" in x and x.get("median_abs_rel_error") is not None]
+            out = []
+            for x in c:
+                x = dict(x)
+                if x.get("median_abs_rel_error_aligned") is not None:
+                    x["median_abs_rel_error_raw"] = x.get("median_abs_rel_error")
+                    x["median_abs_rel_error"] = x["median_abs_rel_error_aligned"]
+                e = x.get("median_abs_rel_error")
+                if "t" in x and isinstance(e, (int, float)) and math.isfinite(e):
+                    out.append(x)
             if out:
                 return sorted(out, key=lambda x: x["t"])
     return []
@@ -543,23 +567,27 @@ def collect_run(spec: RunSpec, outcome: RunOutcome, gt=None, evaluator: Callable
         rec["status"], rec["reason"] = "crash", reason
         return rec
 
-    if outcome.returncode != 0:
-        tail = f": {outcome.stderr_tail}" if outcome.stderr_tail else ""
-        return crash(f"exit status {outcome.returncode}{tail}")
+    tail = f": {outcome.stderr_tail}" if outcome.stderr_tail else ""
     missing = [f for f in RUN_FILES if not (spec.out_dir / f).is_file()]
     if missing:
+        if outcome.returncode != 0:
+            return crash(f"exit status {outcome.returncode}{tail}")
         return crash(f"missing {', '.join(missing)}")
     try:
         timing = _read_json(spec.out_dir / "timing.json")
         run_json = _read_json(spec.out_dir / "run.json")
     except (OSError, ValueError) as err:
+        if outcome.returncode != 0:
+            return crash(f"exit status {outcome.returncode}{tail}")
         return crash(f"unreadable timing.json/run.json: {err}")
+    # a run that wrote its files and then exited non-zero (e.g. "failed: no frame tracked")
+    # is a failed run, judged below from its files
     rec["timing"] = {k: timing.get(k) for k in ("tracking", "mapping", "stages", "wall_s")}
     frames = timing.get("frames") or {}
     rec["frames"] = frames
     rec["run_status"] = run_json.get("status")
     rec["depth_accuracy"] = run_json.get("depth_accuracy")
-    rec["depth_series"] = depth_error_series(run_json)
+    rec["depth_series"] = depth_error_series(run_json, spec.out_dir)
     metric = run_is_metric(run_json, spec.sequence)
     rec["metric"] = metric
     try:
@@ -569,10 +597,12 @@ def collect_run(spec: RunSpec, outcome: RunOutcome, gt=None, evaluator: Callable
     rec["poses"] = len(est)
 
     reasons = []
-    if run_json.get("status") not in ("ok", None):
-        reasons.append(f"status {run_json.get('status')!r}")
-    elif run_json.get("status") is None:
+    if outcome.returncode != 0:
+        reasons.append(f"exit status {outcome.returncode}{tail}")
+    if run_json.get("status") is None:
         reasons.append("run.json has no status")
+    elif run_json.get("status") not in OK_STATUSES:
+        reasons.append(f"status {run_json.get('status')!r}")
     n_in = int(frames.get("in") or 0)
     n_lost = int(frames.get("lost") or 0)
     if n_lost > max_lost_ratio * max(n_in, 1):
