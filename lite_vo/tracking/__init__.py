@@ -1,1 +1,11 @@
-"""Direct SE(3) tracking against the semi-dense inverse-depth map (numba kernels + Tracker)."""
+"""Direct SE(3) tracking against the semi-dense inverse-depth map (numba kernels + Tracker).
+
+Public API: :class:`TrackingReference` (immutable per-level point arrays built once per map update),
+:class:`Tracker` (coarse-to-fine iteratively re-weighted Levenberg-Marquardt), :class:`TrackingResult`.
+Imports numpy, numba, :mod:`lite_vo.image`, :mod:`lite_vo.camera`, :mod:`lite_vo.geometry` only.
+"""
+from .config import TrackingConfig
+from .reference import ReferenceLevel, TrackingReference
+from .tracker import Tracker, TrackingResult
+
+__all__ = ["TrackingConfig", "TrackingReference", "ReferenceLevel", "Tracker", "TrackingResult"]

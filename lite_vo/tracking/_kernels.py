@@ -1,0 +1,435 @@
+"""numba kernels of direct SE(3) tracking.
+
+Owns the hot loops of :mod:`lite_vo.tracking`:
+
+* :func:`accumulate` - ONE pass over the reference points of a level: warp into the new image,
+  bilinear intensity and gradient, residual, variance + Huber weight, 6x6 normal equations,
+  robust energy, good/bad counts and the affine-brightness sums.
+* :func:`lm_level` - the iteratively re-weighted Levenberg-Marquardt loop of one pyramid level
+  (calls :func:`accumulate` once per iteration; no Python between iterations).
+* small helpers: :func:`exp_se3_nb`, :func:`solve6` (Cholesky), pose composition.
+
+The pose estimated here is ``T_new_ref`` (reference points are warped into the new image), with
+left-multiplicative updates ``T <- exp(dxi) @ T``; the Jacobian is then evaluated at the warped
+point ``q = T_new_ref p`` (``dq/dxi = [I | -[q]x]``), which is cheap.
+
+Reference point layout (``pts``, float32, shape (N, PTS_COLS)): ``X, Y, Z`` (the point in the
+reference camera, ``Z = 1/idepth``), ``I_ref``, ``idepth_var``.
+
+Every threshold is an argument. Imports numpy and numba only.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+PTS_COLS = 5
+BUF_ROWS = 8       # per-point scratch rows: jx, jy, jz, qx, qy, qz, r, w
+
+# accumulator layout (float64 vector filled by accumulate)
+ACC_H = 0          # 21 entries: upper triangle of H, row-major
+ACC_G = 21         # 6 entries: g = sum w r J
+ACC_ENERGY = 27    # sum of the Huber energy of the normalised residuals
+ACC_N = 28         # points inside the image (used)
+ACC_GOOD = 29      # good residuals
+ACC_BAD = 30       # bad residuals
+ACC_WR2 = 31       # sum w r^2 (IRLS-weighted squared residual)
+ACC_AFF = 32       # 5 entries: sw, s_ref, s_new, s_ref2, s_ref_new (affine-brightness sums)
+ACC_SIZE = 37
+
+# lm_level statistics output
+ST_ITER = 0        # outer LM iterations
+ST_EVALS = 1       # kernel evaluations
+ST_ERR = 2         # final mean energy
+ST_STATUS = 3      # 0 converged/cap, 1 no points, 2 singular system
+ST_SIZE = 4
+
+
+# Reduction-only kernel: "reassoc" lets LLVM vectorise the sums (summation order changes, nothing
+# else: NaN/inf semantics stay strict, no approximate functions).
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _reduce_normal_equations(buf, n, acc):
+    """H (upper triangle) and g from the per-point buffer rows ``jx, jy, jz, qx, qy, qz, r, w``."""
+    jx = buf[0]; jy = buf[1]; jz = buf[2]
+    qx = buf[3]; qy = buf[4]; qz = buf[5]
+    rr = buf[6]; ww = buf[7]
+    h00 = 0.0; h01 = 0.0; h02 = 0.0; h03 = 0.0; h04 = 0.0; h05 = 0.0
+    h11 = 0.0; h12 = 0.0; h13 = 0.0; h14 = 0.0; h15 = 0.0
+    h22 = 0.0; h23 = 0.0; h24 = 0.0; h25 = 0.0
+    h33 = 0.0; h34 = 0.0; h35 = 0.0
+    h44 = 0.0; h45 = 0.0
+    h55 = 0.0
+    g0 = 0.0; g1 = 0.0; g2 = 0.0; g3 = 0.0; g4 = 0.0; g5 = 0.0
+    for i in range(n):
+        a0 = jx[i]; a1 = jy[i]; a2 = jz[i]
+        x = qx[i]; y = qy[i]; z = qz[i]
+        # J_omega = q x J_v
+        a3 = y * a2 - z * a1
+        a4 = z * a0 - x * a2
+        a5 = x * a1 - y * a0
+        w = ww[i]
+        wr = w * rr[i]
+        b0 = w * a0; b1 = w * a1; b2 = w * a2; b3 = w * a3; b4 = w * a4; b5 = w * a5
+        h00 += b0 * a0; h01 += b0 * a1; h02 += b0 * a2; h03 += b0 * a3; h04 += b0 * a4; h05 += b0 * a5
+        h11 += b1 * a1; h12 += b1 * a2; h13 += b1 * a3; h14 += b1 * a4; h15 += b1 * a5
+        h22 += b2 * a2; h23 += b2 * a3; h24 += b2 * a4; h25 += b2 * a5
+        h33 += b3 * a3; h34 += b3 * a4; h35 += b3 * a5
+        h44 += b4 * a4; h45 += b4 * a5
+        h55 += b5 * a5
+        g0 += wr * a0; g1 += wr * a1; g2 += wr * a2; g3 += wr * a3; g4 += wr * a4; g5 += wr * a5
+    acc[0] = h00; acc[1] = h01; acc[2] = h02; acc[3] = h03; acc[4] = h04; acc[5] = h05
+    acc[6] = h11; acc[7] = h12; acc[8] = h13; acc[9] = h14; acc[10] = h15
+    acc[11] = h22; acc[12] = h23; acc[13] = h24; acc[14] = h25
+    acc[15] = h33; acc[16] = h34; acc[17] = h35
+    acc[18] = h44; acc[19] = h45
+    acc[20] = h55
+    acc[21] = g0; acc[22] = g1; acc[23] = g2; acc[24] = g3; acc[25] = g4; acc[26] = g5
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def accumulate(pts, img3, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
+               good_c2, good_g2, border, min_z, buf, acc):
+    """Residuals, weights and normal equations of all points at pose ``T`` (= T_new_ref).
+
+    ``img3``: (H, W, 3) float32 ``[I, gx, gy]`` of the new image at this level.
+    A point is used when its warped depth exceeds ``min_z``, its position lies in
+    ``[border, W-1-border) x [border, H-1-border)`` and the interpolated values are finite.
+    Residual ``r = I_new(warp) - (aff_a * I_ref + aff_b)``; weight
+    ``w = 1 / (sigma_i2 + var * (dr/d idepth)^2)`` times Huber (threshold ``huber_k`` on ``|r| sqrt(w)``).
+    Results are written into ``acc`` (layout ``ACC_*``, zeroed first). ``buf``: float64 scratch of
+    shape (8, >= N); the per-point loop fills it, a vectorised reduction then sums H and g.
+    """
+    for k in range(acc.shape[0]):
+        acc[k] = 0.0
+    h = img3.shape[0]
+    w = img3.shape[1]
+    umax = w - 1.0 - border
+    vmax = h - 1.0 - border
+    r00 = T[0, 0]; r01 = T[0, 1]; r02 = T[0, 2]; t0 = T[0, 3]
+    r10 = T[1, 0]; r11 = T[1, 1]; r12 = T[1, 2]; t1 = T[1, 3]
+    r20 = T[2, 0]; r21 = T[2, 1]; r22 = T[2, 2]; t2 = T[2, 3]
+    huber_k2 = huber_k * huber_k
+    energy = 0.0; n_good = 0; wr2 = 0.0
+    a_sw = 0.0; a_sx = 0.0; a_sy = 0.0; a_sxx = 0.0; a_sxy = 0.0
+    bjx = buf[0]; bjy = buf[1]; bjz = buf[2]
+    bqx = buf[3]; bqy = buf[4]; bqz = buf[5]
+    br = buf[6]; bw = buf[7]
+    m = 0
+    n = pts.shape[0]
+    for i in range(n):
+        X = np.float64(pts[i, 0])
+        Y = np.float64(pts[i, 1])
+        Z = np.float64(pts[i, 2])
+        qz = r20 * X + r21 * Y + r22 * Z + t2
+        if not (qz > min_z):
+            continue
+        qx = r00 * X + r01 * Y + r02 * Z + t0
+        qy = r10 * X + r11 * Y + r12 * Z + t1
+        iz = 1.0 / qz
+        u = fx * qx * iz + cx
+        v = fy * qy * iz + cy
+        if not (u >= border and u < umax and v >= border and v < vmax):
+            continue
+        x0 = int(u)
+        y0 = int(v)
+        ax = u - x0
+        ay = v - y0
+        w00 = (1.0 - ax) * (1.0 - ay)
+        w10 = ax * (1.0 - ay)
+        w01 = (1.0 - ax) * ay
+        w11 = ax * ay
+        i_new = (w00 * img3[y0, x0, 0] + w10 * img3[y0, x0 + 1, 0]
+                 + w01 * img3[y0 + 1, x0, 0] + w11 * img3[y0 + 1, x0 + 1, 0])
+        gx = (w00 * img3[y0, x0, 1] + w10 * img3[y0, x0 + 1, 1]
+              + w01 * img3[y0 + 1, x0, 1] + w11 * img3[y0 + 1, x0 + 1, 1])
+        gy = (w00 * img3[y0, x0, 2] + w10 * img3[y0, x0 + 1, 2]
+              + w01 * img3[y0 + 1, x0, 2] + w11 * img3[y0 + 1, x0 + 1, 2])
+        i_ref = np.float64(pts[i, 3])
+        r = i_new - (aff_a * i_ref + aff_b)
+        if not (abs(r) < np.inf and abs(gx) < np.inf and abs(gy) < np.inf):
+            continue
+        var = np.float64(pts[i, 4])
+        gxf = gx * fx
+        gyf = gy * fy
+        jx = gxf * iz
+        jy = gyf * iz
+        jz = -(jx * qx + jy * qy) * iz
+        dr_dd = (jx * t0 + jy * t1 + jz * t2) * Z
+        wp = 1.0 / (sigma_i2 + var * dr_dd * dr_dd)
+        rn2 = r * r * wp
+        if rn2 <= huber_k2:
+            wgt = wp
+            energy += rn2
+        else:
+            rn = np.sqrt(rn2)
+            wgt = wp * huber_k / rn
+            energy += 2.0 * huber_k * rn - huber_k2
+        bjx[m] = jx; bjy[m] = jy; bjz[m] = jz
+        bqx[m] = qx; bqy[m] = qy; bqz[m] = qz
+        br[m] = r; bw[m] = wgt
+        m += 1
+        wr2 += wgt * r * r
+        if r * r < good_c2 + good_g2 * (gx * gx + gy * gy):
+            n_good += 1
+        ar = abs(r)
+        wa = 1.0 if ar <= aff_k else aff_k / ar
+        a_sw += wa
+        a_sx += wa * i_ref
+        a_sy += wa * i_new
+        a_sxx += wa * i_ref * i_ref
+        a_sxy += wa * i_ref * i_new
+    _reduce_normal_equations(buf, m, acc)
+    acc[ACC_ENERGY] = energy
+    acc[ACC_N] = m
+    acc[ACC_GOOD] = n_good
+    acc[ACC_BAD] = m - n_good
+    acc[ACC_WR2] = wr2
+    acc[ACC_AFF + 0] = a_sw
+    acc[ACC_AFF + 1] = a_sx
+    acc[ACC_AFF + 2] = a_sy
+    acc[ACC_AFF + 3] = a_sxx
+    acc[ACC_AFF + 4] = a_sxy
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def unpack_normal_equations(acc, H, g):
+    """Fill the symmetric 6x6 ``H`` and the 6-vector ``g`` from an accumulator vector."""
+    k = 0
+    for i in range(6):
+        for j in range(i, 6):
+            H[i, j] = acc[ACC_H + k]
+            H[j, i] = acc[ACC_H + k]
+            k += 1
+        g[i] = acc[ACC_G + i]
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def solve6(A, b, x, rel_eps):
+    """Solve the SPD system ``A x = b`` (6x6) by Cholesky; False when a pivot is not positive.
+
+    A pivot counts as not positive when it is below ``rel_eps`` times the largest diagonal entry
+    (or not finite). ``A`` is left unchanged.
+    """
+    L = np.zeros((6, 6))
+    dmax = 0.0
+    for i in range(6):
+        if A[i, i] > dmax:
+            dmax = A[i, i]
+    if not (dmax > 0.0 and dmax < np.inf):
+        return False
+    for j in range(6):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not (s > rel_eps * dmax):
+            return False
+        ljj = np.sqrt(s)
+        L[j, j] = ljj
+        for i in range(j + 1, 6):
+            s2 = A[i, j]
+            for k in range(j):
+                s2 -= L[i, k] * L[j, k]
+            L[i, j] = s2 / ljj
+    y = np.zeros(6)
+    for i in range(6):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * y[k]
+        y[i] = s / L[i, i]
+    for i in range(5, -1, -1):
+        s = y[i]
+        for k in range(i + 1, 6):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+    return True
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def exp_se3_nb(xi, out):
+    """``out = exp(xi)`` for the twist ``xi = (v, omega)`` (same maths as geometry.exp_se3)."""
+    vx = xi[0]; vy = xi[1]; vz = xi[2]
+    wx = xi[3]; wy = xi[4]; wz = xi[5]
+    th2 = wx * wx + wy * wy + wz * wz
+    th = np.sqrt(th2)
+    if th2 < 1e-10:
+        A = 1.0 - th2 / 6.0
+        B = 0.5 - th2 / 24.0
+        C = 1.0 / 6.0 - th2 / 120.0
+    else:
+        A = np.sin(th) / th
+        B = (1.0 - np.cos(th)) / th2
+        C = (th - np.sin(th)) / (th2 * th)
+    # W = hat(w); W^2 = w w^T - th2 I
+    W = np.zeros((3, 3))
+    W[0, 1] = -wz; W[0, 2] = wy
+    W[1, 0] = wz; W[1, 2] = -wx
+    W[2, 0] = -wy; W[2, 1] = wx
+    W2 = W @ W
+    for i in range(3):
+        for j in range(3):
+            e = 1.0 if i == j else 0.0
+            out[i, j] = e + A * W[i, j] + B * W2[i, j]
+    for i in range(3):
+        Vv = 0.0
+        for j in range(3):
+            e = 1.0 if i == j else 0.0
+            Vv += (e + B * W[i, j] + C * W2[i, j]) * xi[j]
+        out[i, 3] = Vv
+    out[3, 0] = 0.0; out[3, 1] = 0.0; out[3, 2] = 0.0; out[3, 3] = 1.0
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def _matmul4(A, B, out):
+    for i in range(4):
+        for j in range(4):
+            s = 0.0
+            for k in range(4):
+                s += A[i, k] * B[k, j]
+            out[i, j] = s
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def _affine_from_sums(acc, a_prev, b_prev, min_var):
+    """Weighted least squares ``I_new ~ a I_ref + b`` from the accumulated robust sums."""
+    sw = acc[ACC_AFF + 0]
+    if not (sw > 0.0):
+        return a_prev, b_prev
+    mx = acc[ACC_AFF + 1] / sw
+    my = acc[ACC_AFF + 2] / sw
+    vxx = acc[ACC_AFF + 3] / sw - mx * mx
+    vxy = acc[ACC_AFF + 4] / sw - mx * my
+    if not (vxx > min_var):
+        return a_prev, my - a_prev * mx
+    a = vxy / vxx
+    return a, my - a * mx
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def lm_level(pts, img3, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_in, aff_k, aff_enabled,
+             aff_min_var, good_c2, good_g2, border, min_z, max_iter, conv_ratio, conv_eps,
+             lambda_init, lambda_accept_max, lambda_accept_factor, lambda_reject_factor,
+             min_points, solve_eps, buf, T_out, acc_out, aff_out, stats):
+    """Iteratively re-weighted Levenberg-Marquardt on ``T_new_ref`` for one pyramid level.
+
+    Schedule (ALGORITHM_NOTES): lambda starts at 0; accepted step: ``lambda <- 0`` if
+    ``lambda <= lambda_accept_max`` else ``lambda * lambda_accept_factor``; rejected step:
+    ``lambda <- lambda_init`` if it was 0 else ``lambda * lambda_reject_factor``; damping
+    ``H_ii *= (1 + lambda)``. The level stops when ``err/last_err > conv_ratio`` after an accepted
+    step, when a rejected step has ``|dxi|^2 < conv_eps``, after ``max_iter`` accepted-or-final
+    iterations, or when the system is singular. Each evaluation is one :func:`accumulate` pass.
+    Writes the final pose (``T_out``), its accumulator (``acc_out``), the affine brightness
+    (``aff_out``) and ``stats`` (layout ``ST_*``).
+    """
+    T = T_init.copy()
+    Tn = np.empty((4, 4))
+    E = np.empty((4, 4))
+    acc = acc_out
+    acc_new = np.empty(ACC_SIZE)
+    H = np.empty((6, 6))
+    A = np.empty((6, 6))
+    g = np.empty(6)
+    b = np.empty(6)
+    inc = np.zeros(6)
+    aff_a = aff_in[0]
+    aff_b = aff_in[1]
+    accumulate(pts, img3, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
+               good_c2, good_g2, border, min_z, buf, acc)
+    evals = 1
+    iters = 0
+    status = 0
+    if acc[ACC_N] < min_points:
+        status = 1
+    else:
+        last_err = acc[ACC_ENERGY] / acc[ACC_N]
+        lam = 0.0
+        done = False
+        while iters < max_iter and not done:
+            iters += 1
+            unpack_normal_equations(acc, H, g)
+            tries = 0
+            while True:
+                tries += 1
+                for i in range(6):
+                    for j in range(6):
+                        A[i, j] = H[i, j]
+                    A[i, i] = H[i, i] * (1.0 + lam)
+                    b[i] = -g[i]
+                if not solve6(A, b, inc, solve_eps):
+                    status = 2
+                    done = True
+                    break
+                exp_se3_nb(inc, E)
+                _matmul4(E, T, Tn)
+                accumulate(pts, img3, Tn, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
+                           good_c2, good_g2, border, min_z, buf, acc_new)
+                evals += 1
+                n_new = acc_new[ACC_N]
+                if n_new >= min_points:
+                    err = acc_new[ACC_ENERGY] / n_new
+                else:
+                    err = np.inf
+                if err < last_err:
+                    for i in range(4):
+                        for j in range(4):
+                            T[i, j] = Tn[i, j]
+                    for k in range(ACC_SIZE):
+                        acc[k] = acc_new[k]
+                    if aff_enabled:
+                        aff_a, aff_b = _affine_from_sums(acc, aff_a, aff_b, aff_min_var)
+                    if err / last_err > conv_ratio:
+                        done = True
+                    last_err = err
+                    if lam <= lambda_accept_max:
+                        lam = 0.0
+                    else:
+                        lam *= lambda_accept_factor
+                    break
+                else:
+                    step2 = 0.0
+                    for i in range(6):
+                        step2 += inc[i] * inc[i]
+                    if step2 < conv_eps or tries >= max_iter:
+                        done = True
+                        break
+                    if lam == 0.0:
+                        lam = lambda_init
+                    else:
+                        lam *= lambda_reject_factor
+        stats[ST_ERR] = last_err
+    for i in range(4):
+        for j in range(4):
+            T_out[i, j] = T[i, j]
+    aff_out[0] = aff_a
+    aff_out[1] = aff_b
+    stats[ST_ITER] = iters
+    stats[ST_EVALS] = evals
+    stats[ST_STATUS] = status
+    if status == 1:
+        stats[ST_ERR] = np.nan
+
+
+def warmup() -> None:
+    """Compile (or load from the cache) every kernel of this module on tiny inputs."""
+    rng = np.random.default_rng(0)
+    n = 16
+    pts = np.empty((n, PTS_COLS), np.float32)
+    pts[:, 0] = rng.uniform(-0.3, 0.3, n)
+    pts[:, 1] = rng.uniform(-0.3, 0.3, n)
+    pts[:, 2] = 1.0
+    pts[:, 3] = rng.uniform(0, 255, n)
+    pts[:, 4] = 1e-3
+    img3 = rng.uniform(0, 255, (8, 8, 3)).astype(np.float32)
+    T = np.eye(4)
+    acc = np.empty(ACC_SIZE)
+    buf = np.empty((BUF_ROWS, n))
+    accumulate(pts, img3, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3, buf, acc)
+    T_out = np.empty((4, 4))
+    aff = np.array([1.0, 0.0])
+    aff_out = np.empty(2)
+    stats = np.zeros(ST_SIZE)
+    lm_level(pts, img3, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, aff, 5.0, True, 1e-6, 1600.0, 0.25, 1.0, 1e-3,
+             3, 0.999, 1e-8, 0.2, 0.2, 0.5, 2.0, 6, 1e-12, buf, T_out, acc, aff_out, stats)
+    x = np.zeros(6)
+    solve6(np.eye(6), np.ones(6), x, 1e-12)
+    E = np.empty((4, 4))
+    exp_se3_nb(np.full(6, 0.1), E)

@@ -1,0 +1,129 @@
+"""TrackingReference: the immutable per-level point arrays tracking aligns against.
+
+Built once per map update (by the mapping thread, or by the system in ``--depth images`` mode) and
+then only read, by the tracking thread: every array is set read-only. Imports numpy, the camera
+intrinsics, :mod:`lite_vo.image` and the tracking kernels' layout constants only.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..camera import PinholeIntrinsics
+from ..image import idepth_pyramid
+from ._kernels import PTS_COLS
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True)
+class ReferenceLevel:
+    """Valid points of one pyramid level, flat contiguous read-only arrays of length N.
+
+    ``x, y``: pixel coordinates at this level (float32, pixel centres at integers);
+    ``intensity``: reference image value; ``idepth``, ``idepth_var``: from the depth pyramid;
+    ``points``: (N, 5) float32 packed ``[X, Y, Z, intensity, idepth_var]`` with ``(X, Y, Z)`` the
+    point in the reference camera (``Z = 1/idepth``), the layout the tracking kernel reads.
+    """
+    lvl: int
+    intrinsics: PinholeIntrinsics
+    x: np.ndarray
+    y: np.ndarray
+    intensity: np.ndarray
+    idepth: np.ndarray
+    idepth_var: np.ndarray
+    points: np.ndarray
+
+    @property
+    def num_points(self) -> int:
+        return int(self.x.shape[0])
+
+    @property
+    def num_pixels(self) -> int:
+        return int(self.intrinsics.width * self.intrinsics.height)
+
+
+class TrackingReference:
+    """A keyframe-like reference: image pyramid + inverse-depth pyramid + per-level point arrays.
+
+    Immutable after :meth:`build` (arrays read-only); safe to share between the tracking and the
+    mapping thread, swapped as a whole under the system's lock.
+    """
+
+    __slots__ = ("frame_id", "intrinsics0", "levels", "image_pyr", "idepth_pyr", "idepth_var_pyr",
+                 "valid_pyr", "_frozen")
+
+    def __init__(self, frame_id, intrinsics0, levels, image_pyr, idepth_pyr, idepth_var_pyr, valid_pyr):
+        self.frame_id = frame_id
+        self.intrinsics0 = intrinsics0
+        self.levels = tuple(levels)
+        self.image_pyr = tuple(image_pyr)
+        self.idepth_pyr = tuple(idepth_pyr)
+        self.idepth_var_pyr = tuple(idepth_var_pyr)
+        self.valid_pyr = tuple(valid_pyr)
+        self._frozen = True
+
+    def __setattr__(self, name, value):
+        if getattr(self, "_frozen", False):
+            raise AttributeError("TrackingReference is immutable")
+        object.__setattr__(self, name, value)
+
+    def __repr__(self) -> str:
+        counts = ", ".join(str(lv.num_points) for lv in self.levels)
+        return f"TrackingReference(frame_id={self.frame_id!r}, points per level=[{counts}])"
+
+    @property
+    def num_levels(self) -> int:
+        return len(self.levels)
+
+    def num_points(self, lvl: int) -> int:
+        return self.levels[lvl].num_points if 0 <= lvl < len(self.levels) else 0
+
+    @classmethod
+    def build(cls, image_pyr, idepth, idepth_var, valid, intrinsics0: PinholeIntrinsics,
+              frame_id=0) -> "TrackingReference":
+        """Build from the reference image pyramid and its level-0 inverse-depth map.
+
+        ``image_pyr``: list of float32 images (level 0 = mapping resolution, as from
+        :func:`lite_vo.image.image_pyramid`); ``idepth``, ``idepth_var``: HxW float (level 0);
+        ``valid``: HxW bool. Pixels with non-finite values, ``idepth <= 0`` or ``idepth_var <= 0``
+        are treated as invalid. The depth pyramid (eq. 5.2/5.3) gets as many levels as ``image_pyr``.
+        """
+        n_lvl = len(image_pyr)
+        if n_lvl < 1:
+            raise ValueError("image_pyr is empty")
+        img0 = np.asarray(image_pyr[0])
+        if img0.shape != (intrinsics0.height, intrinsics0.width):
+            raise ValueError(f"image level 0 has shape {img0.shape}, intrinsics say "
+                             f"{(intrinsics0.height, intrinsics0.width)}")
+        if np.shape(idepth) != img0.shape:
+            raise ValueError(f"idepth has shape {np.shape(idepth)}, image level 0 has {img0.shape}")
+        ds, vs, ms = idepth_pyramid(idepth, idepth_var, valid, n_lvl)
+        levels = []
+        imgs = []
+        for lvl in range(n_lvl):
+            img = np.ascontiguousarray(image_pyr[lvl], dtype=np.float32)
+            if img.shape != ms[lvl].shape:
+                raise ValueError(f"image level {lvl} has shape {img.shape}, expected {ms[lvl].shape}")
+            imgs.append(_ro(img))
+            K = intrinsics0.level(lvl)
+            ys, xs = np.nonzero(ms[lvl])
+            d = ds[lvl][ys, xs].astype(np.float64)
+            z = 1.0 / d
+            pts = np.empty((xs.shape[0], PTS_COLS), np.float32)
+            pts[:, 0] = (xs - K.cx) / K.fx * z
+            pts[:, 1] = (ys - K.cy) / K.fy * z
+            pts[:, 2] = z
+            pts[:, 3] = img[ys, xs]
+            pts[:, 4] = vs[lvl][ys, xs]
+            levels.append(ReferenceLevel(
+                lvl=lvl, intrinsics=K, x=_ro(xs.astype(np.float32)), y=_ro(ys.astype(np.float32)),
+                intensity=_ro(pts[:, 3].copy()), idepth=_ro(d.astype(np.float32)),
+                idepth_var=_ro(pts[:, 4].copy()), points=_ro(pts)))
+        return cls(frame_id, intrinsics0, levels, imgs, [_ro(d) for d in ds], [_ro(v) for v in vs],
+                   [_ro(m) for m in ms])

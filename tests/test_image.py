@@ -1,0 +1,113 @@
+"""Image and inverse-depth pyramids, gradients: kernels vs the numpy twins in naive_tracking.py."""
+import numpy as np
+import pytest
+
+import naive_tracking as naive
+from lite_vo import image
+from lite_vo.camera import PinholeIntrinsics
+
+
+@pytest.mark.parametrize("shape", [(8, 8), (7, 9), (15, 6), (2, 3), (121, 161)])
+def test_image_pyramid_matches_naive_any_size(shape):
+    rng = np.random.default_rng(1)
+    img = rng.uniform(0, 255, shape).astype(np.float32)
+    levels = 1
+    while min(shape) >> levels >= 1 and levels < 4:
+        levels += 1
+    pyr = image.image_pyramid(img, levels)
+    assert len(pyr) == levels
+    np.testing.assert_array_equal(pyr[0], img)
+    ref = img
+    for lvl in range(1, levels):
+        ref = naive.downsample_image(ref)
+        assert pyr[lvl].shape == (shape[0] >> lvl, shape[1] >> lvl)
+        assert pyr[lvl].dtype == np.float32 and pyr[lvl].flags.c_contiguous
+        np.testing.assert_allclose(pyr[lvl], ref, rtol=0, atol=1e-4)
+
+
+def test_pyramid_sizes_match_intrinsics_levels():
+    intr = PinholeIntrinsics(200.0, 200.0, 160.0, 121.0, 321, 243)
+    pyr = image.image_pyramid(np.zeros((243, 321), np.float32), 4)
+    for lvl, im in enumerate(pyr):
+        k = intr.level(lvl)
+        assert im.shape == (k.height, k.width)
+
+
+def test_image_pyramid_rejects_bad_input():
+    with pytest.raises(ValueError):
+        image.image_pyramid(np.zeros((4, 4, 3)), 2)
+    with pytest.raises(ValueError):
+        image.image_pyramid(np.zeros((1, 4)), 2)
+    with pytest.raises(ValueError):
+        image.image_pyramid(np.zeros((4, 4)), 0)
+
+
+@pytest.mark.parametrize("seed,shape,density", [(0, (8, 8), 0.3), (1, (9, 7), 0.6), (2, (16, 20), 0.05),
+                                                (3, (5, 5), 0.0)])
+def test_idepth_pyramid_matches_naive(seed, shape, density):
+    rng = np.random.default_rng(seed)
+    d = rng.uniform(0.2, 2.0, shape).astype(np.float32)
+    v = rng.uniform(1e-4, 1e-1, shape).astype(np.float32)
+    m = rng.uniform(size=shape) < density
+    ds, vs, ms = image.idepth_pyramid(d, v, m, 3)
+    rd, rv, rm = np.where(m, d, np.nan), np.where(m, v, np.nan), m
+    np.testing.assert_array_equal(ms[0], m)
+    for lvl in range(1, 3):
+        rd, rv, rm = naive.downsample_idepth(rd, rv, rm)
+        np.testing.assert_array_equal(ms[lvl], rm)
+        np.testing.assert_allclose(ds[lvl][rm], rd[rm], rtol=1e-5)
+        np.testing.assert_allclose(vs[lvl][rm], rv[rm], rtol=1e-5)
+        assert np.all(np.isnan(ds[lvl][~rm])) and np.all(np.isnan(vs[lvl][~rm]))
+
+
+def test_idepth_pyramid_equations_5_2_5_3_by_hand():
+    # one 2x2 block, three valid pixels with variances 1, 2, 4 and idepths 1, 2, 3
+    d = np.array([[1.0, 2.0], [3.0, 9.0]], np.float32)
+    v = np.array([[1.0, 2.0], [4.0, 1.0]], np.float32)
+    m = np.array([[True, True], [True, False]])
+    od, ov, om = image.downsample_idepth(d, v, m)
+    info = 1 + 0.5 + 0.25
+    assert om[0, 0]
+    assert od[0, 0] == pytest.approx((1 / 1 + 2 / 2 + 3 / 4) / info, rel=1e-6)
+    assert ov[0, 0] == pytest.approx(3 / info, rel=1e-6)     # n / sum(1/var): information averaged
+
+
+def test_idepth_pyramid_becomes_denser():
+    rng = np.random.default_rng(5)
+    m = rng.uniform(size=(64, 64)) < 0.2
+    _, _, ms = image.idepth_pyramid(np.ones((64, 64)), np.ones((64, 64)), m, 4)
+    dens = [x.mean() for x in ms]
+    assert dens[0] < dens[1] < dens[2] < dens[3]
+
+
+def test_sanitize_drops_nan_nonpositive_and_zero_variance():
+    d = np.array([[1.0, np.nan, -1.0, 0.5, 0.5, np.inf]], np.float32)
+    v = np.array([[1.0, 1.0, 1.0, 0.0, np.nan, 1.0]], np.float32)
+    m = np.ones_like(d, bool)
+    sd, sv, sm = image.sanitize_idepth(d, v, m)
+    np.testing.assert_array_equal(sm, [[True, False, False, False, False, False]])
+    assert np.isnan(sd[0, 1:]).all() and np.isnan(sv[0, 1:]).all()
+
+
+def test_gradients_match_naive_and_zero_border():
+    rng = np.random.default_rng(3)
+    img = rng.uniform(0, 255, (7, 11)).astype(np.float32)
+    gx, gy = image.gradients(img)
+    nx, ny = naive.gradients(img)
+    np.testing.assert_allclose(gx, nx, atol=1e-4)
+    np.testing.assert_allclose(gy, ny, atol=1e-4)
+    stack = image.intensity_gradient_stack(img)
+    assert stack.shape == (7, 11, 3)
+    np.testing.assert_array_equal(stack[:, :, 0], img)
+    assert np.all(gx[0] == 0) and np.all(gx[:, -1] == 0)
+
+
+def test_gradient_of_linear_ramp_is_exact():
+    ys, xs = np.mgrid[0:6, 0:8].astype(np.float32)
+    gx, gy = image.gradients(3 * xs - 2 * ys)
+    np.testing.assert_allclose(gx[1:-1, 1:-1], 3.0)
+    np.testing.assert_allclose(gy[1:-1, 1:-1], -2.0)
+
+
+def test_warmup_runs():
+    image.warmup()
