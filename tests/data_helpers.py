@@ -158,11 +158,12 @@ def write_euroc_folder(root: Path, n: int = 5, width: int = 64, height: int = 48
         cv2.imwrite(str(cam / "data" / f"{ts}.png"), textured_image(width, height, seed + i))
         lines.append(f"{ts},{ts}.png")
     (cam / "data.csv").write_text("\n".join(lines) + "\n")
-    data = ", ".join(f"{v!r}" for v in T_BS.reshape(-1))
+    vals = [repr(float(v)) for v in T_BS.reshape(-1)]
+    data = ",\n         ".join(", ".join(vals[4 * r:4 * r + 4]) for r in range(4))  # one row per line
     (cam / "sensor.yaml").write_text(
         "%YAML:1.0\n# General sensor definitions.\nsensor_type: camera\ncomment: test camera\n\n"
         "# Sensor extrinsics wrt. the body-frame.\nT_BS:\n  cols: 4\n  rows: 4\n"
-        f"  data: [{data[:40]}\n         {data[40:]}]\n\n"
+        f"  data: [{data}]\n\n"
         f"rate_hz: 20\nresolution: [{width}, {height}]\ncamera_model: pinhole\n"
         f"intrinsics: [50.0, 50.0, {(width - 1) / 2}, {(height - 1) / 2}] #fu, fv, cu, cv\n"
         "distortion_model: radial-tangential\n"

@@ -81,5 +81,5 @@ def check_increasing(path: Path, timestamps: np.ndarray, line_numbers: list[int]
     bad = np.nonzero(np.diff(t) <= 0)[0]
     if len(bad):
         i = int(bad[0]) + 1
-        raise InputError(f"{path} line {line_numbers[i]}: timestamp {t[i]!r} is not after the previous one "
-                         f"({t[i - 1]!r}); timestamps must be strictly increasing")
+        raise InputError(f"{path} line {line_numbers[i]}: timestamp {float(t[i])!r} is not after the previous one "
+                         f"({float(t[i - 1])!r}); timestamps must be strictly increasing")
