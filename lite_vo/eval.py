@@ -13,8 +13,8 @@ Definitions (``E`` estimate, ``G`` ground truth, both ``T_world_cam``):
   applied to the estimate's translations before RPE as well;
 * ATE RMSE: ``sqrt(mean |p_gt - S(p_est)|^2)`` in metres;
 * RPE: for each matched pose i, the matched pose j whose timestamp is closest to ``t_i + delta_s``
-  (pairs whose target lies beyond the end, or whose ``t_j`` is more than ``delta_s / 2`` from the
-  target because of a gap, are skipped); error ``inv(G_i^-1 G_j) (E_i^-1 E_j)``; translational
+  (pairs whose target lies more than ``max_dt`` beyond the end, or whose ``t_j`` is more than
+  ``delta_s / 2`` from the target because of a gap, are skipped); error ``inv(G_i^-1 G_j) (E_i^-1 E_j)``; translational
   norm and rotation angle each divided by the actual ``t_j - t_i``; RMSE over pairs, reported in
   cm/s and deg/s. ``motion_cm_per_s`` / ``rot_motion_deg_per_s`` are the mean ground-truth
   speeds over the same pairs, ``rpe_trans_pct = 100 * rpe_trans / motion``.
@@ -146,8 +146,10 @@ class EvalResult:
         return "\n".join(out)
 
 
-def relative_pairs(t: np.ndarray, delta_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs ``(i, j)``: for each i the j with ``t_j`` closest to ``t_i + delta_s`` (see module doc)."""
+def relative_pairs(t: np.ndarray, delta_s: float, end_tol: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs ``(i, j)``: for each i the j with ``t_j`` closest to ``t_i + delta_s``; pairs whose
+    target time lies more than ``end_tol`` beyond the last timestamp, or whose ``t_j`` misses the
+    target by more than ``delta_s / 2`` (a gap), are left out."""
     t = np.asarray(t, dtype=np.float64)
     n = len(t)
     if n < 2:
@@ -157,7 +159,7 @@ def relative_pairs(t: np.ndarray, delta_s: float) -> tuple[np.ndarray, np.ndarra
     j = np.where(np.abs(t[j - 1] - target) <= np.abs(t[j] - target), j - 1, j)
     i = np.arange(n)
     tol = 1e-9 * max(1.0, float(np.abs(t).max()))
-    ok = (j > i) & (target <= t[-1] + tol) & (np.abs(t[j] - target) <= 0.5 * delta_s + tol)
+    ok = (j > i) & (target <= t[-1] + end_tol + tol) & (np.abs(t[j] - target) <= 0.5 * delta_s + tol)
     return i[ok], j[ok]
 
 
@@ -199,7 +201,7 @@ def evaluate(gt: Trajectory, est: Trajectory, align: str = "sim3", delta_s: floa
     # RPE on the scale-corrected estimate (rotation of the alignment cancels in relative motions)
     Es = E.copy()
     Es[:, :3, 3] *= s
-    i, j = relative_pairs(t, delta_s)
+    i, j = relative_pairs(t, delta_s, end_tol=max_dt)
     nan = float("nan")
     if len(i) == 0:
         warnings.append(f"no pose pairs {delta_s:g} s apart: RPE undefined (trajectory spans "
