@@ -561,7 +561,7 @@ def regularize_kernel(idepth, idepth_var, valid, validity, blacklist, radius, di
                     dn = np.float64(idepth[yy, xx])
                     vn = np.float64(idepth_var[yy, xx])
                     diff = dn - dc
-                    if diff_fac * diff * diff > vn + vc:
+                    if not (diff_fac * diff * diff <= vn + vc):   # NaN never counts
                         continue
                     vsum += validity[yy, xx]
                     r2 = (xx - x) * (xx - x) + (yy - y) * (yy - y)
