@@ -20,7 +20,7 @@ from lite_vo.errors import ConfigError
 class ARConfig:
     """World model (ground plane, in-painting, mesh), physics, autopilot, rendering, video."""
     # --- ground plane (5.3.2)
-    acc_lowpass_alpha: float = param(0.05, "exponential low-pass factor per accelerometer sample (gravity direction)", 1e-4, 1.0)
+    acc_lowpass_tau_s: float = param(1.0, "time constant of the accelerometer low-pass filter (gravity direction), seconds", 0.0, 1000.0)
     ground_min_support: int = param(150, "minimum number of depth samples supporting the ground height", 3, 10**7)
     ground_band_rel: float = param(0.004, "height band of the supporting samples, relative to the median scene depth", 1e-5, 0.5)
     ground_max_dist_rel: float = param(2.0, "use map points closer to the camera than this times their median distance", 0.1, 1e6)
@@ -49,6 +49,7 @@ class ARConfig:
     time_scale: float = param(1.0, "simulated seconds per video second", 0.01, 100.0)
     world_update_every: int = param(5, "rebuild the world model every k-th frame (asynchronously, Fig. 5.7)", 1, 1000)
     async_world: bool = param(True, "build world models in a worker thread (false: synchronous, deterministic)")
+    start_after_s: float = param(0.5, "start the AR world this long after the first map (lets a random initialisation converge)", 0.0, 1000.0)
     spawn_height: float = param(0.15, "drop the car from this height above the ground (car lengths)", 0.0, 10.0)
     # --- autopilot
     drive_speed: float = param(12.0, "target wheel speed when driving (rad/s)", 0.0, 200.0)

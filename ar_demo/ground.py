@@ -59,24 +59,40 @@ class GroundPlane:
 
 
 class GravityFilter:
-    """Streaming exponential low-pass filter of the accelerometer, in the world frame.
+    """Streaming low-pass filter of the accelerometer, in the world frame.
 
-    ``update(acc_cam, R_world_cam)`` with one (or N) specific-force sample(s) in the camera frame;
+    First-order filter with time constant ``tau_s``: ``g <- g + a (R acc - g)`` with
+    ``a = max(dt / (tau + dt), 1 / k)`` for the k-th sample, i.e. a plain running mean until the
+    exponential window is full (so the first sample does not dominate). ``update(acc_cam,
+    R_world_cam, timestamps)`` with one or N specific-force samples in the camera frame;
     ``up_world`` is the current unit up direction (None before the first sample).
     """
 
-    def __init__(self, alpha: float):
-        self.alpha = float(alpha)
+    def __init__(self, tau_s: float):
+        self.tau_s = float(tau_s)
         self._state: np.ndarray | None = None
+        self._count = 0
+        self._last_t: float | None = None
 
-    def update(self, acc_cam: np.ndarray, R_world_cam: np.ndarray | None = None) -> None:
+    def update(self, acc_cam: np.ndarray, R_world_cam: np.ndarray | None = None, timestamps=None) -> None:
         acc = np.atleast_2d(np.asarray(acc_cam, dtype=np.float64))
         R = np.eye(3) if R_world_cam is None else np.asarray(R_world_cam, dtype=np.float64)
         acc_world = acc @ R.T if R.ndim == 2 else np.einsum("nij,nj->ni", R, acc)
-        for a in acc_world:
+        ts = (np.full(len(acc), np.nan) if timestamps is None
+              else np.atleast_1d(np.asarray(timestamps, dtype=np.float64)))
+        for a, t in zip(acc_world, ts):
             if not np.all(np.isfinite(a)):
                 continue
-            self._state = a.copy() if self._state is None else (1 - self.alpha) * self._state + self.alpha * a
+            self._count += 1
+            dt = (t - self._last_t) if (self._last_t is not None and np.isfinite(t)) else 0.0
+            if np.isfinite(t):
+                self._last_t = float(t)
+            k = 1.0 / self._count
+            if self.tau_s > 0 and dt > 0:
+                k = max(k, dt / (self.tau_s + dt))
+            elif self.tau_s == 0:
+                k = 1.0
+            self._state = a.copy() if self._state is None else self._state + k * (a - self._state)
 
     @property
     def up_world(self) -> np.ndarray | None:
@@ -86,14 +102,15 @@ class GravityFilter:
         return self._state / n if n > 0 else None
 
 
-def up_from_accelerometer(acc_cam: np.ndarray, alpha: float, R_world_cam: np.ndarray | None = None) -> np.ndarray:
+def up_from_accelerometer(acc_cam: np.ndarray, tau_s: float, R_world_cam: np.ndarray | None = None,
+                          timestamps=None) -> np.ndarray:
     """Unit up direction from accelerometer samples (N, 3) (camera frame, +g up at rest).
 
     ``R_world_cam``: (3, 3) or per-sample (N, 3, 3) camera orientations; without it the result is in
-    the camera frame of the samples.
+    the camera frame of the samples. Without timestamps the filter is the plain mean.
     """
-    f = GravityFilter(alpha)
-    f.update(acc_cam, R_world_cam)
+    f = GravityFilter(tau_s)
+    f.update(acc_cam, R_world_cam, timestamps)
     if f.up_world is None:
         raise InputError("accelerometer: no finite samples to estimate gravity")
     return f.up_world

@@ -38,6 +38,27 @@ def _pybullet():
     return pybullet, pybullet_data
 
 
+_CAR_LENGTH: list[float] = []
+
+
+def racecar_length() -> float:
+    """Length (physics units) of the pybullet racecar, measured once from its link AABBs."""
+    if not _CAR_LENGTH:
+        pb, pbd = _pybullet()
+        c = pb.connect(pb.DIRECT)
+        try:
+            pb.setAdditionalSearchPath(pbd.getDataPath(), physicsClientId=c)
+            car = pb.loadURDF("racecar/racecar.urdf", physicsClientId=c)
+            lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+            for link in range(-1, pb.getNumJoints(car, physicsClientId=c)):
+                a, b = pb.getAABB(car, link, physicsClientId=c)
+                lo, hi = np.minimum(lo, a), np.maximum(hi, b)
+            _CAR_LENGTH.append(float(hi[0] - lo[0]))
+        finally:
+            pb.disconnect(physicsClientId=c)
+    return _CAR_LENGTH[0]
+
+
 @dataclass(frozen=True)
 class PhysicsFrame:
     """Similarity between the world (VO) frame and the physics frame (z up, ground at z = 0)."""
@@ -184,8 +205,9 @@ class PhysicsWorld:
             body = pb.createMultiBody(baseMass=0, baseCollisionShapeIndex=shape, physicsClientId=c)
             self.world_body, self.world_shape = body, shape
         if old_body >= 0:
+            # pybullet (3.2.x) cannot free a collision shape once a body used it ("it is used" /
+            # "TODO: dealloc"), so only the body is removed; a 15x20 mesh shape is ~30 kB.
             pb.removeBody(old_body, physicsClientId=c)
-            pb.removeCollisionShape(old_shape, physicsClientId=c)
         self.world_swaps += 1
 
     # ------------------------------------------------------------------ car
