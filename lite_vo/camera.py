@@ -408,15 +408,18 @@ class Rectifier:
         self._check(d, "depth image")
         nat = self.camera.intrinsics
         bx, by = self._depth_base
-        out = np.zeros(bx.shape, dtype=np.float32)
-        todo = np.ones(bx.shape, dtype=bool)
-        for ox, oy in self._depth_offsets:
-            xs = np.clip(bx + ox, 0, nat.width - 1)
-            ys = np.clip(by + oy, 0, nat.height - 1)
-            cand = d[ys, xs]
-            take = todo & (cand > 0) & np.isfinite(cand)
-            out[take] = cand[take]
-            todo &= ~take
-            if not todo.any():
+        out = d[by, bx]                                   # nearest pixel first (most are valid)
+        bad = ~((out > 0) & np.isfinite(out))            # 0, negative, NaN, inf: invalid
+        out[bad] = 0.0
+        todo = np.nonzero(bad.ravel())[0]
+        flat = out.reshape(-1)
+        tx, ty = bx.reshape(-1)[todo], by.reshape(-1)[todo]
+        for ox, oy in self._depth_offsets[1:]:            # then the footprint, nearest first
+            if len(todo) == 0:
                 break
+            cand = d[np.clip(ty + oy, 0, nat.height - 1), np.clip(tx + ox, 0, nat.width - 1)]
+            take = (cand > 0) & np.isfinite(cand)
+            flat[todo[take]] = cand[take]
+            keep = ~take
+            todo, tx, ty = todo[keep], tx[keep], ty[keep]
         return out

@@ -402,7 +402,7 @@ def open_euroc(mav0: Path, calib=None) -> EurocSequence:
         arr, numbers = parse_table(imu_csv, 7, None, sep=",", what="IMU file",
                                    layout="timestamp [ns], w_x, w_y, w_z, a_x, a_y, a_z")
         if len(arr):
-            ts = _ns_column(imu_csv)
+            ts = arr[:, 0] * 1e-9
             check_increasing(imu_csv, ts, numbers)
             imu_yaml = mav0 / "imu0" / "sensor.yaml"
             T_body_imu = yaml_matrix4(imu_yaml, parse_simple_yaml(imu_yaml)) if imu_yaml.is_file() else np.eye(4)
@@ -414,7 +414,7 @@ def open_euroc(mav0: Path, calib=None) -> EurocSequence:
         arr, numbers = parse_table(gt_csv, 8, None, sep=",", what="ground truth file",
                                    layout="timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z")
         if len(arr):
-            ts = _ns_column(gt_csv)
+            ts = arr[:, 0] * 1e-9
             check_increasing(gt_csv, ts, numbers)
             q_wxyz = arr[:, 4:8]
             bad = np.nonzero(np.linalg.norm(q_wxyz, axis=1) < 1e-6)[0]
@@ -429,21 +429,6 @@ def open_euroc(mav0: Path, calib=None) -> EurocSequence:
             seq.groundtruth = Trajectory(ts, T_world_bodyframe @ T_body_cam)
     _imread_grey(images[0], camera)
     return seq
-
-
-def _ns_column(path: Path) -> np.ndarray:
-    """First CSV column as integer nanoseconds -> float seconds (exact integer parsing)."""
-    out = []
-    for n, s in read_lines(path):
-        tok = s.split(",", 1)[0].strip()
-        try:
-            out.append(int(tok))
-        except ValueError:
-            try:
-                out.append(int(float(tok)))
-            except ValueError:
-                raise InputError(f"{path} line {n}: timestamp {tok!r} is not an integer number of nanoseconds") from None
-    return np.asarray(out, dtype=np.int64) * 1e-9
 
 
 def open_image_folder(folder: Path, calib=None, fps: Optional[float] = None) -> ImageFolderSequence:
