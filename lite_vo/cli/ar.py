@@ -1,0 +1,87 @@
+"""``lite-vo ar``: argparse only; the work is :func:`ar_demo.pipeline.run_ar` (needs the ``[ar]`` extra).
+
+This module never imports ar_demo, pybullet, moderngl or trimesh at module level.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+AR_EXTRA_MESSAGE = "the AR demo needs the [ar] extra: pip install 'lite-vo[ar]'"
+
+
+def add_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "ar", help="AR physics demo: a simulated car drives through the scene, rendered into a video",
+        description="Run the visual odometry on SEQUENCE, build a collision mesh from the semi-dense depth map "
+                    "(ground plane from the accelerometer, variational in-painting), simulate a racecar on it with "
+                    "pybullet and render it into the camera images (off-screen OpenGL) as an .mp4 video. "
+                    "Needs the [ar] extra.")
+    p.add_argument("sequence", help="sequence folder (TUM/EuRoC/image folder) or video file with calib.txt")
+    p.add_argument("--out", type=Path, required=True, help="output video (.mp4); never overwritten without --force")
+    p.add_argument("--profile", default="phone", help="VO profile name or TOML file (default: phone)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a VO profile value (repeatable)")
+    p.add_argument("--ar-set", dest="ar_overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override an AR setting, e.g. --ar-set grid_width=40 (repeatable; see ar_demo/config.py)")
+    p.add_argument("--max-frames", type=int, default=None, help="process at most N frames")
+    p.add_argument("--poses", choices=("estimate", "gt"), default="estimate",
+                   help="estimate: the visual odometry; gt: ground-truth poses and depth (testing the AR part)")
+    p.add_argument("--panels", action="store_true",
+                   help="add side panels: semi-dense depth map and collision mesh from another viewpoint")
+    p.add_argument("--mesh", type=Path, default=None, help="also export the last collision mesh (.obj or .ply)")
+    p.add_argument("--trajectory", type=Path, default=None, help="also write the camera trajectory (TUM format)")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    return p
+
+
+def _import_ar():
+    from ..errors import MissingExtraError
+    try:
+        import moderngl  # noqa: F401
+        import pybullet  # noqa: F401
+        import trimesh  # noqa: F401
+
+        import ar_demo.pipeline as pipeline
+    except ImportError as err:
+        raise MissingExtraError(AR_EXTRA_MESSAGE) from err
+    return pipeline
+
+
+def progress_printer(quiet: bool):
+    import sys
+    if quiet:
+        return None
+
+    def show(i, n):
+        if i == n or i % 10 == 0:
+            print(f"\r  frame {i}/{n}", end="\n" if i == n else "", file=sys.stderr, flush=True)
+    return show
+
+
+def run(args) -> int:
+    from ..errors import InputError
+    pipeline = _import_ar()
+    from ar_demo.config import ar_config
+
+    out = Path(args.out)
+    if out.suffix.lower() != ".mp4":
+        raise InputError(f"{out}: the output video must end in .mp4")
+    for path in (out, args.mesh, args.trajectory):
+        if path is not None and Path(path).exists() and not args.force:
+            raise InputError(f"{path}: exists (use --force to overwrite)")
+    if args.mesh is not None and Path(args.mesh).suffix.lower() not in (".obj", ".ply"):
+        raise InputError(f"{args.mesh}: the mesh must be .obj or .ply")
+    if args.max_frames is not None and args.max_frames <= 0:
+        raise InputError(f"--max-frames must be positive, got {args.max_frames}")
+    cfg = ar_config(args.ar_overrides)
+    summary = pipeline.run_ar(args.sequence, out, profile=args.profile, poses=args.poses,
+                              max_frames=args.max_frames, cfg=cfg, panels=args.panels or None,
+                              overrides=args.overrides, trajectory_out=args.trajectory, mesh_out=args.mesh,
+                              progress=progress_printer(args.quiet))
+    t = summary["timing_ms"]
+    print(f"{out}: {summary['frames_written']} frames {summary['video_size'][0]}x{summary['video_size'][1]}, "
+          f"{summary['frames_with_pose']} with a pose; world model {t['world_model']['median']:.1f} ms, "
+          f"simulation {t['simulation']['median']:.1f} ms, rendering {t['render']['median']:.1f} ms (medians)")
+    return 0
