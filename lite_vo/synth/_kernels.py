@@ -18,69 +18,69 @@ from numba import njit, prange
 
 
 @njit(cache=True, nogil=True)
+def _room_exit(o, d, lo, hi, t_min, t_best, face, axis):
+    """Exit plane of the room along one axis: updates (t_best, face)."""
+    if d > 0.0:
+        t = (hi - o) / d
+        side = 1
+    elif d < 0.0:
+        t = (lo - o) / d
+        side = 0
+    else:
+        return t_best, face
+    if t > t_min and t < t_best:
+        return t, 2 * axis + side
+    return t_best, face
+
+
+@njit(cache=True, nogil=True)
+def _slab(o, d, lo, hi, t_near, t_far, ax_near, side_near, axis):
+    """One axis of the ray/box slab test: updates (t_near, t_far, entry axis, entry side);
+    returns t_near = +inf on a miss (ray parallel to the slab and outside it)."""
+    if d == 0.0:
+        if o < lo or o > hi:
+            return np.inf, t_far, ax_near, side_near
+        return t_near, t_far, ax_near, side_near
+    t0 = (lo - o) / d
+    t1 = (hi - o) / d
+    if d > 0.0:
+        if t0 > t_near:
+            t_near, ax_near, side_near = t0, axis, 0
+        if t1 < t_far:
+            t_far = t1
+    else:
+        if t1 > t_near:
+            t_near, ax_near, side_near = t1, axis, 1
+        if t0 < t_far:
+            t_far = t0
+    return t_near, t_far, ax_near, side_near
+
+
+@njit(cache=True, nogil=True)
 def cast_ray(ox, oy, oz, dx, dy, dz, room_lo, room_hi, box_lo, box_hi, t_min, pu, pv, box_px):
     """Nearest hit ``(t, face)`` of the ray ``o + t d`` (t > t_min); face -1 if nothing is hit.
 
     ``(pu, pv)``: the ray's pixel coordinates; box ``b`` is skipped when they lie outside its
     conservative screen rectangle ``box_px[b] = (u_min, u_max, v_min, v_max)`` (culling only:
     pass +-inf rectangles to test every box)."""
-    o = (ox, oy, oz)
-    d = (dx, dy, dz)
     t_best = np.inf
     face = -1
     # room: the ray leaves the room box through the nearest exit plane
-    for a in range(3):
-        da = d[a]
-        if da > 0.0:
-            t = (room_hi[a] - o[a]) / da
-            side = 1
-        elif da < 0.0:
-            t = (room_lo[a] - o[a]) / da
-            side = 0
-        else:
-            continue
-        if t > t_min and t < t_best:
-            t_best = t
-            face = 2 * a + side
+    t_best, face = _room_exit(ox, dx, room_lo[0], room_hi[0], t_min, t_best, face, 0)
+    t_best, face = _room_exit(oy, dy, room_lo[1], room_hi[1], t_min, t_best, face, 1)
+    t_best, face = _room_exit(oz, dz, room_lo[2], room_hi[2], t_min, t_best, face, 2)
     # solid boxes: slab test, entry face
     for b in range(box_lo.shape[0]):
         if pu < box_px[b, 0] or pu > box_px[b, 1] or pv < box_px[b, 2] or pv > box_px[b, 3]:
             continue
-        t_near = -np.inf
-        t_far = np.inf
-        ax_near = -1
-        side_near = 0
-        miss = False
-        for a in range(3):
-            da = d[a]
-            lo = box_lo[b, a]
-            hi = box_hi[b, a]
-            if da == 0.0:
-                if o[a] < lo or o[a] > hi:
-                    miss = True
-                    break
-                continue
-            t0 = (lo - o[a]) / da
-            t1 = (hi - o[a]) / da
-            if da > 0.0:
-                enter = t0
-                leave = t1
-                side = 0
-            else:
-                enter = t1
-                leave = t0
-                side = 1
-            if enter > t_near:
-                t_near = enter
-                ax_near = a
-                side_near = side
-            if leave < t_far:
-                t_far = leave
-        if miss or ax_near < 0 or t_near > t_far or t_near <= t_min:
+        tn, tf, ax, sd = -np.inf, np.inf, -1, 0
+        tn, tf, ax, sd = _slab(ox, dx, box_lo[b, 0], box_hi[b, 0], tn, tf, ax, sd, 0)
+        tn, tf, ax, sd = _slab(oy, dy, box_lo[b, 1], box_hi[b, 1], tn, tf, ax, sd, 1)
+        tn, tf, ax, sd = _slab(oz, dz, box_lo[b, 2], box_hi[b, 2], tn, tf, ax, sd, 2)
+        if ax < 0 or tn > tf or tn <= t_min or tn >= t_best:
             continue
-        if t_near < t_best:
-            t_best = t_near
-            face = 6 + 6 * b + 2 * ax_near + side_near
+        t_best = tn
+        face = 6 + 6 * b + 2 * ax + sd
     return t_best, face
 
 
@@ -121,12 +121,16 @@ def shade_hit(px, py, pz, dx, dy, dz, face, depth, sample_px, tex_data, tex_meta
     is ``depth * sample_px / sqrt(|cos|)`` (area-based level of detail).
     """
     a = (face % 6) // 2
-    p = (px, py, pz)
-    d = (dx, dy, dz)
-    s_m = p[(a + 1) % 3] - tex_origin[face, 0]
-    t_m = p[(a + 2) % 3] - tex_origin[face, 1]
+    if a == 0:
+        s_m, t_m, da = py, pz, dx
+    elif a == 1:
+        s_m, t_m, da = pz, px, dy
+    else:
+        s_m, t_m, da = px, py, dz
+    s_m -= tex_origin[face, 0]
+    t_m -= tex_origin[face, 1]
     norm = math.sqrt(dx * dx + dy * dy + dz * dz)
-    c = abs(d[a]) / norm
+    c = abs(da) / norm
     if c < min_cos:
         c = min_cos
     texel = tex_texel[face]
