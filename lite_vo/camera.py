@@ -3,6 +3,12 @@
 :class:`PinholeIntrinsics` is the undistorted camera the whole pipeline works with after
 rectification: ``u = fx * x / z + cx`` with pixel centres at integer coordinates.
 Pyramid level l+1 halves fx, fy and maps ``c -> (c + 0.5) / 2 - 0.5`` (2x2 box averaging).
+
+:class:`Camera` is a calibrated camera as recorded (native size, radial-tangential or FOV
+distortion, thesis ch. 2.1); :meth:`Camera.rectifier` builds a :class:`Rectifier` that turns
+native frames (and depth images) into undistorted pinhole images at the working resolution.
+
+Imports numpy (and cv2 lazily, for the rectifier) only.
 """
 from __future__ import annotations
 

@@ -194,6 +194,7 @@ class VideoSequence(Sequence):
         _check_size(path, img, camera, "video frame")
         self.fps = float(fps) if fps else (vfps if vfps > 0 else DEFAULT_FPS)
         self._count = max(n, 1)
+        self.timestamps = np.arange(self._count) / self.fps   # nominal; iteration may end earlier
         self._cap = None
 
     def __len__(self) -> int:
@@ -351,7 +352,14 @@ def _load_calibration(calib) -> Calibration:
 
 
 def open_tum(folder: Path, calib=None, depth_max_dt: float = DEFAULT_DEPTH_MAX_DT) -> TumSequence:
-    """A TUM RGB-D layout folder (``rgb.txt`` + optional depth, ground truth, accelerometer)."""
+    """A TUM RGB-D layout folder (``rgb.txt`` + optional depth, ground truth, accelerometer).
+
+    Calibration: ``calib`` argument, else ``calib.txt`` in the folder, else the published Freiburg
+    N calibration for folders named ``rgbd_dataset_freiburgN_*``. Depth images are associated to
+    rgb images one-to-one by nearest timestamp within ``depth_max_dt``; PNG values / depth_scale
+    = metres (TUM default 5000). ``accelerometer.txt`` is used as recorded: the project's format
+    (and ``lite-vo synth``) store it in the camera frame; original TUM recordings store the
+    Kinect's own accelerometer axes, which this reader does not convert."""
     name = folder.name
     if calib is not None:
         cal = _load_calibration(calib)
