@@ -7,6 +7,7 @@ import pytest
 
 import lite_vo
 from data_helpers import textured_image, write_calib, write_tum_folder
+from lite_vo.camera import Camera
 from lite_vo.errors import InputError
 from lite_vo.io import Frame, TumSequence, open_sequence
 
@@ -105,6 +106,19 @@ def test_calib_txt_with_distortion_and_fov(tmp_path):
     assert cal.camera.model == "fov" and cal.camera.params == (0.9,)
     p.write_text("500 500 320 240 0 0 0 0\n640 480\n")
     assert read_calib_txt(p).camera.model == "none"
+
+
+@pytest.mark.parametrize("camera", [
+    Camera.radtan(517.3, 516.5, 318.6, 255.3, 640, 480, 0.2624, -0.9531, -0.0054, 0.0026, 1.1633),
+    Camera.fov(300.0, 301.0, 319.5, 239.5, 640, 480, 0.91),
+    Camera.pinhole(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370),
+], ids=["radtan", "fov", "pinhole"])
+def test_write_calib_txt_round_trip(tmp_path, camera):
+    from lite_vo.io import read_calib_txt, write_calib_txt
+    p = write_calib_txt(tmp_path / "calib.txt", camera, depth_scale=1000.0, comment="a test\ncamera")
+    cal = read_calib_txt(p)
+    assert cal.camera == camera and cal.depth_scale == 1000.0
+    assert read_calib_txt(write_calib_txt(tmp_path / "c2.txt", camera)).depth_scale is None
 
 
 # ------------------------------------------------------------------------------------------------

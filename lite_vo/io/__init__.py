@@ -4,7 +4,7 @@ files, trajectory (TUM format) and PLY point-cloud I/O.
 May import numpy, cv2 (lazily), ``lite_vo.camera``, ``lite_vo.geometry``, ``lite_vo.errors``;
 never the tracking, mapping, system or CLI modules.
 """
-from .calib import Calibration, freiburg_camera, read_calib_txt, read_euroc_camera_yaml
+from .calib import Calibration, freiburg_camera, read_calib_txt, read_euroc_camera_yaml, write_calib_txt
 from .ply import read_ply, write_ply
 from .sequences import (EurocSequence, FileSequence, ImageFolderSequence, LiveCameraSequence, Sequence,
                         TumSequence, VideoSequence, associate_nearest, open_sequence)
@@ -15,5 +15,5 @@ __all__ = [
     "open_sequence", "Sequence", "FileSequence", "TumSequence", "EurocSequence", "ImageFolderSequence",
     "VideoSequence", "LiveCameraSequence", "Frame", "Trajectory", "Accelerometer",
     "read_trajectory", "write_trajectory", "write_ply", "read_ply",
-    "Calibration", "read_calib_txt", "read_euroc_camera_yaml", "freiburg_camera", "associate_nearest",
+    "Calibration", "read_calib_txt", "write_calib_txt", "read_euroc_camera_yaml", "freiburg_camera", "associate_nearest",
 ]

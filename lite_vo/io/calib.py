@@ -116,6 +116,24 @@ def read_calib_txt(path: str | Path) -> Calibration:
     return Calibration(cam, depth_scale, str(path))
 
 
+def write_calib_txt(path: str | Path, camera: Camera, depth_scale: Optional[float] = None,
+                    comment: str | None = None) -> Path:
+    """Write ``camera`` (and the depth scale) in the ``calib.txt`` format read by :func:`read_calib_txt`."""
+    path = Path(path)
+    i = camera.intrinsics
+    lines = [f"# {c}" for c in (comment or "").splitlines()]
+    if camera.model == "fov":
+        lines += ["model fov", "# fx fy cx cy omega"]
+    else:
+        lines += ["# fx fy cx cy [k1 k2 p1 p2 [k3]]  (pixels; distortion in OpenCV order)"]
+    vals = [i.fx, i.fy, i.cx, i.cy, *camera.params]
+    lines += [" ".join(repr(float(v)) for v in vals), "# width height", f"{i.width} {i.height}"]
+    if depth_scale is not None:
+        lines += ["# depth PNG units per metre", f"depth_scale {float(depth_scale)!r}"]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
 # ------------------------------------------------------------------------------------------------
 # A small YAML subset: `key: scalar`, `key: [flow, list]` (may span lines), and one level of
 # nested mappings (`T_BS:` followed by indented `data: [...]`). Enough for EuRoC sensor.yaml.
