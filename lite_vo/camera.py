@@ -304,16 +304,16 @@ def _rectified_pinhole(cam: Camera, map_width: int, multiple_of: int):
     i = cam.intrinsics
     map_width = int(map_width)
     multiple_of = int(multiple_of)
+    from .errors import ConfigError
     if multiple_of < 1:
-        raise ValueError("multiple_of must be >= 1")
-    if map_width < multiple_of or map_width < 8:
-        raise ValueError(f"map_width {map_width} is too small (multiple_of={multiple_of})")
+        raise ConfigError(f"multiple_of must be >= 1, got {multiple_of}")
     w0 = map_width
     h0 = max(1, int(round(map_width * i.height / i.width)))
     w = (w0 // multiple_of) * multiple_of
     h = (h0 // multiple_of) * multiple_of
-    if h < 1:
-        raise ValueError(f"map_width {map_width}: the output height {h0} is smaller than multiple_of={multiple_of}")
+    if map_width < 8 or w < 1 or h < 1:
+        raise ConfigError(f"map_width {map_width} is too small for the {i.width}x{i.height} camera: the "
+                          f"{w0}x{h0} image has no side that is a multiple of {multiple_of}")
     x0, x1, y0, y1 = _valid_normalised_rect(cam)
     # keep the native pixel aspect (fx/fy); the uncropped w0 x h0 output must fit into the rectangle
     s = max(w0 / ((x1 - x0) * i.fx), h0 / ((y1 - y0) * i.fy))

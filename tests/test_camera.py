@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lite_vo.camera import Camera, PinholeIntrinsics
-from lite_vo.errors import InputError
+from lite_vo.errors import ConfigError, InputError
 
 FR1 = Camera.radtan(517.3, 516.5, 318.6, 255.3, 640, 480, 0.2624, -0.9531, -0.0054, 0.0026, 1.1633)
 EUROC = Camera.radtan(458.654, 457.296, 367.215, 248.375, 752, 480, -0.28340811, 0.07395907, 0.00019359,
@@ -224,5 +224,7 @@ def test_rectifier_rejects_wrong_image_size():
         rect(np.zeros((240, 320), np.uint8))
     with pytest.raises(InputError, match="depth image"):
         rect.depth(np.zeros((480, 641), np.float32))
-    with pytest.raises(ValueError, match="too small"):
+    with pytest.raises(ConfigError, match="map_width 4 is too small"):
         FR1.rectifier(4)
+    with pytest.raises(ConfigError, match="map_width 40 is too small for the 1226x370 camera: the 40x12 image"):
+        KITTI.rectifier(40, multiple_of=16)
