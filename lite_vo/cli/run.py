@@ -1,0 +1,66 @@
+"""``lite-vo run``: argparse only; the work is :func:`lite_vo.runner.run_sequence`."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .common import add_profile_args, config_from_args
+
+
+def add_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "run", help="run visual odometry on a sequence",
+        description="Run the visual odometry on SEQUENCE (TUM RGB-D folder, EuRoC folder, image folder or "
+                    "video with calib.txt, or a camera index) and write trajectory.txt, timing.json, run.json "
+                    "and map.ply into the output folder.")
+    p.add_argument("sequence", help="sequence folder, video file, or live camera index (e.g. 0)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (default ./lite_vo_out/<sequence name>); never overwritten without --force")
+    add_profile_args(p)
+    p.add_argument("--mode", choices=("sync", "realtime"), default=None,
+                   help="sync: deterministic, mapping every k-th frame; realtime: two threads at the frames' timestamps")
+    p.add_argument("--init", choices=("auto", "depth", "random"), default=None,
+                   help="map initialisation (auto: depth image when the sequence has one)")
+    p.add_argument("--depth", choices=("filter", "images"), default="filter",
+                   help="images: track every frame against the previous depth image (RGB-D odometry, no mapping)")
+    p.add_argument("--poses", choices=("estimate", "gt"), default="estimate",
+                   help="gt: take the poses from the ground truth (mapping only)")
+    p.add_argument("--max-frames", type=int, default=None, help="process at most N frames")
+    p.add_argument("--start-frame", type=int, default=0, help="skip the first N frames")
+    p.add_argument("--seed", type=int, default=None, help="seed of random initialisation (system.seed)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output folder")
+    return p
+
+
+def run(args) -> int:
+    from ..errors import InputError
+    from ..io import open_sequence
+    from ..runner import run_sequence
+
+    overrides = []
+    if args.mode:
+        overrides.append(f'system.mode="{args.mode}"')
+    if args.init:
+        overrides.append(f'system.init="{args.init}"')
+    if args.seed is not None:
+        overrides.append(f"system.seed={args.seed}")
+    config = config_from_args(args, extra=overrides)
+    if args.max_frames is not None and args.max_frames <= 0:
+        raise InputError(f"--max-frames must be positive, got {args.max_frames}")
+    source = int(args.sequence) if args.sequence.isdigit() else args.sequence
+    seq = open_sequence(source)
+    out = args.out or Path("lite_vo_out") / seq.name
+    res = run_sequence(seq, config, out, force=args.force, depth_source=args.depth, pose_source=args.poses,
+                       max_frames=args.max_frames, start_frame=args.start_frame, quiet=args.quiet,
+                       profile_name=args.profile)
+    c = res.info["frames"]
+    msg = (f"{seq.name}: {res.status}; {c['tracked']} of {c['in']} frames tracked, {c['lost']} lost, "
+           f"{res.timing['frames']['dropped']} dropped; tracking {res.timing['tracking']['median']:.1f} ms, "
+           f"mapping {res.timing['mapping']['median']:.1f} ms (medians); output in {out}")
+    acc = res.info.get("depth_accuracy")
+    if acc:
+        msg += (f"\n  depth: density {100 * acc['density']:.1f}%, median rel. error "
+                f"{100 * acc['median_abs_rel_error']:.2f}%, within 10% {100 * acc['within_10pct']:.1f}%")
+    print(msg)
+    return 0 if not res.status.startswith("failed") else 3

@@ -1,0 +1,546 @@
+"""The visual odometry system (thesis chapter 5, Fig. 5.4): tracking and mapping sharing one map.
+
+:class:`VisualOdometry` owns the frame preprocessing (rectify, resize, pyramid), a
+:class:`~lite_vo.tracking.Tracker` and a :class:`~lite_vo.mapping.Mapper`.
+
+Threads and ownership
+---------------------
+``mode="sync"`` runs everything in the caller's thread, mapping every k-th frame: deterministic.
+
+``mode="realtime"`` runs mapping in a second thread:
+
+* **tracking thread** (the caller of :meth:`VisualOdometry.process`) only: ``_tracker``,
+  ``_last_pose``, ``_velocity``, ``_lost_count``, the timers of tracking.
+* **mapping thread** only: ``_mapper``, the mapping timers, ``_map_frames``.
+* **shared**: ``_reference`` (an immutable :class:`TrackingReference` plus the pose of the frame it
+  lives in), swapped by the mapping thread under ``_ref_lock``; ``_pending`` (the newest tracked
+  frame waiting for mapping; older ones are replaced, i.e. skipped) under ``_cond``.
+  No array is written after it has been handed to the other thread.
+
+Numba kernels release the GIL, so both threads really run in parallel.
+
+This module never imports ``ar_demo`` or any GL/physics package.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from .camera import PinholeIntrinsics
+from .config import VOConfig
+from .errors import InputError, LiteVOError
+from .geometry import inverse_se3
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class FrameResult:
+    """Outcome of one frame: the pose (None when lost), the quality of tracking and timing."""
+    index: int
+    timestamp: float
+    T_world_cam: np.ndarray | None
+    lost: bool
+    quality: dict = field(default_factory=dict)
+    mapped: bool = False
+    event: str = ""  # "init", "reinit", "lost", "recovered" or ""
+
+
+class OutputSink:
+    """Observer of the system; every method is a no-op by default. The AR demo is one sink.
+
+    Methods are called from the thread that produced the event (the mapping thread for
+    ``on_map`` in realtime mode) and must not modify the arrays they receive.
+    """
+
+    def on_frame(self, result: FrameResult, image: np.ndarray) -> None:
+        """A frame was processed; ``image`` is the rectified float32 image at mapping resolution."""
+
+    def on_map(self, frame_id: int, timestamp: float, T_world_cam: np.ndarray, idepth: np.ndarray,
+               idepth_var: np.ndarray, intrinsics: PinholeIntrinsics) -> None:
+        """A new map was published (idepth/idepth_var NaN where there is no hypothesis)."""
+
+    def on_finish(self) -> None:
+        """The run ended."""
+
+
+class Timers:
+    """Named lists of durations in milliseconds, with the contract's summary statistics."""
+
+    def __init__(self) -> None:
+        self._lists: dict[str, list[float]] = {}
+        self._lock = threading.Lock()
+
+    def add(self, name: str, ms: float) -> None:
+        with self._lock:
+            self._lists.setdefault(name, []).append(float(ms))
+
+    def values(self, name: str) -> list[float]:
+        with self._lock:
+            return list(self._lists.get(name, ()))
+
+    def names(self) -> list[str]:
+        with self._lock:
+            return list(self._lists)
+
+    @staticmethod
+    def summary(values: Sequence[float]) -> dict:
+        if len(values) == 0:
+            return {"count": 0, "mean": 0.0, "std": 0.0, "median": 0.0, "p95": 0.0}
+        a = np.asarray(values, dtype=np.float64)
+        return {"count": int(a.size), "mean": float(a.mean()), "std": float(a.std()),
+                "median": float(np.median(a)), "p95": float(np.percentile(a, 95))}
+
+
+@dataclass(frozen=True)
+class _Reference:
+    """What tracking tracks against: an immutable reference and the pose of its frame."""
+    tracking_ref: Any
+    T_world_ref: np.ndarray
+    frame_id: int
+    idepth: np.ndarray        # level-0 map the reference was built from (read-only)
+    idepth_var: np.ndarray
+    valid: np.ndarray
+
+
+@dataclass
+class _Frame:
+    """A preprocessed frame (arrays never written after construction)."""
+    index: int
+    timestamp: float
+    image: np.ndarray                 # float32 at mapping resolution
+    pyramid: list
+    depth_m: np.ndarray | None        # at mapping resolution, 0 = invalid
+    T_world_cam: np.ndarray | None = None
+    residual: float = 0.0
+
+
+class VisualOdometry:
+    """Semi-dense monocular visual odometry: ``process(image, timestamp) -> FrameResult``.
+
+    Parameters
+    ----------
+    camera:
+        a :class:`lite_vo.camera.Camera` (anything with ``rectifier(width, multiple_of)``), or a
+        :class:`PinholeIntrinsics` of already undistorted input images.
+    config:
+        a :class:`VOConfig` (``lite_vo.load_profile("phone")``).
+    sinks:
+        :class:`OutputSink` observers.
+    depth_source:
+        ``"filter"`` (the semi-dense filter, normal operation) or ``"images"`` (track every frame
+        against the previous frame's depth image: RGB-D odometry, isolates tracking).
+    pose_source:
+        ``"estimate"`` (tracking) or ``"given"`` (poses passed to :meth:`process`: isolates mapping).
+    """
+
+    def __init__(self, camera, config: VOConfig, sinks: Iterable[OutputSink] = (),
+                 depth_source: str = "filter", pose_source: str = "estimate") -> None:
+        from .image import image_pyramid
+        from .mapping import Mapper
+        from .tracking import Tracker
+
+        if depth_source not in ("filter", "images"):
+            raise LiteVOError(f"depth_source must be 'filter' or 'images', not {depth_source!r}")
+        if pose_source not in ("estimate", "given"):
+            raise LiteVOError(f"pose_source must be 'estimate' or 'given', not {pose_source!r}")
+        self.config = config
+        self.depth_source = depth_source
+        self.pose_source = pose_source
+        self.sinks = list(sinks)
+        res = config.resolution
+        if config.system.numba_threads > 0:
+            import numba
+            numba.set_num_threads(min(config.system.numba_threads, numba.config.NUMBA_NUM_THREADS))
+        multiple = 2 ** (res.pyramid_levels - 1)
+        if isinstance(camera, PinholeIntrinsics):
+            self._rectifier = _ResizeOnly(camera, res.map_width, multiple)
+        else:
+            self._rectifier = camera.rectifier(res.map_width, multiple_of=multiple)
+        self.map_intrinsics: PinholeIntrinsics = self._rectifier.intrinsics
+        self._image_pyramid = image_pyramid
+        self.timers = Timers()
+        self._rng_seed = config.system.seed
+        # tracking thread only
+        self._tracker = Tracker(config.tracking, self.map_intrinsics, res.pyramid_levels, res.track_level)
+        self._last_pose: np.ndarray | None = None
+        self._last_good_pose: np.ndarray | None = None
+        self._velocity = np.eye(4)
+        self._lost_count = 0
+        self._index = 0
+        self._t0: float | None = None
+        self._last_ts: float | None = None
+        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "reinit": 0, "mapped": 0}
+        self._prev_depth_frame: _Frame | None = None
+        # mapping thread only
+        self._mapper = Mapper(config.mapping, self.map_intrinsics, seed=self._rng_seed)
+        self._map_frames: list[tuple[float, dict]] = []  # (timestamp, depth accuracy) per mapped frame
+        self.depth_accuracy_series: list[dict] = []
+        # shared
+        self._ref_lock = threading.Lock()
+        self._reference: _Reference | None = None
+        self._cond = threading.Condition()
+        self._pending: _Frame | None = None
+        self._stop = False
+        self._map_error: BaseException | None = None
+        self._thread: threading.Thread | None = None
+        self._initialized = False
+        self.metric = False  # True when the map has metric scale (depth images)
+        if config.system.mode == "realtime" and depth_source == "filter":
+            self._thread = threading.Thread(target=self._mapping_loop, name="lite_vo-mapping", daemon=True)
+            self._thread.start()
+
+    # ------------------------------------------------------------------ public API
+    @property
+    def initialized(self) -> bool:
+        return self._initialized
+
+    def process(self, image: np.ndarray, timestamp: float, depth: np.ndarray | None = None,
+                T_world_cam: np.ndarray | None = None) -> FrameResult:
+        """Track one frame (and map it, in sync mode, when it is its turn).
+
+        ``depth`` (metres, 0 = invalid, camera resolution) is used for depth initialisation and in
+        ``depth_source="images"``; ``T_world_cam`` is required with ``pose_source="given"``.
+        """
+        self._check_input(image, timestamp, T_world_cam)
+        t_start = time.perf_counter()
+        frame = self._preprocess(image, timestamp, depth)
+        self.counts["in"] += 1
+        if self._map_error is not None:
+            raise LiteVOError(f"mapping thread failed: {self._map_error}") from self._map_error
+        if self.depth_source == "images":
+            result = self._process_rgbd(frame, t_start)
+        elif self.pose_source == "given":
+            result = self._process_given_pose(frame, T_world_cam, t_start)
+        else:
+            result = self._process_tracking(frame, t_start)
+        for s in self.sinks:
+            s.on_frame(result, frame.image)
+        return result
+
+    def depth_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """(idepth, idepth_var) of the latest published map at mapping resolution, NaN where empty."""
+        with self._ref_lock:
+            ref = self._reference
+        if ref is None:
+            h, w = self.map_intrinsics.height, self.map_intrinsics.width
+            return np.full((h, w), np.nan, np.float32), np.full((h, w), np.nan, np.float32)
+        return (np.where(ref.valid, ref.idepth, np.nan).astype(np.float32),
+                np.where(ref.valid, ref.idepth_var, np.nan).astype(np.float32))
+
+    def map_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame points (N, 3) of the latest map and their idepth variance (N,)."""
+        with self._ref_lock:
+            ref = self._reference
+        idepth, var = self.depth_map()
+        ok = np.isfinite(idepth) & (idepth > 1e-6)
+        if ref is None or not ok.any():
+            return np.zeros((0, 3)), np.zeros(0)
+        v, u = np.nonzero(ok)
+        p_cam = self.map_intrinsics.unproject_idepth(u, v, idepth[ok])
+        T = ref.T_world_ref
+        return p_cam @ T[:3, :3].T + T[:3, 3], var[ok].astype(np.float64)
+
+    def close(self) -> None:
+        """Stop the mapping thread (realtime mode) after it finished the pending frame."""
+        if self._thread is not None:
+            with self._cond:
+                self._stop = True
+                self._cond.notify_all()
+            self._thread.join()
+            self._thread = None
+        for s in self.sinks:
+            s.on_finish()
+        if self._map_error is not None:
+            raise LiteVOError(f"mapping thread failed: {self._map_error}") from self._map_error
+
+    def __enter__(self) -> "VisualOdometry":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def timing(self) -> dict:
+        """The ``timing.json`` contract (times in ms)."""
+        stages = {n: Timers.summary(self.timers.values(n)) for n in sorted(self.timers.names())
+                  if n not in ("tracking", "mapping")}
+        return {
+            "tracking": Timers.summary(self.timers.values("tracking")),
+            "mapping": Timers.summary(self.timers.values("mapping")),
+            "stages": stages,
+            "frames": {k: int(self.counts[k]) for k in ("in", "tracked", "lost", "dropped")},
+        }
+
+    def note_dropped(self) -> None:
+        """Count a frame the caller skipped (realtime playback behind schedule)."""
+        self.counts["dropped"] += 1
+
+    # ------------------------------------------------------------------ preprocessing
+    def _check_input(self, image, timestamp, T_world_cam) -> None:
+        if not isinstance(image, np.ndarray) or image.ndim not in (2, 3):
+            raise InputError("image must be a 2-D (grey) or 3-D (colour) numpy array")
+        if not np.isfinite(timestamp):
+            raise InputError(f"timestamp {timestamp!r} is not finite")
+        if self._last_ts is not None and timestamp <= self._last_ts:
+            raise InputError(f"timestamps must increase: {timestamp!r} after {self._last_ts!r}")
+        self._last_ts = float(timestamp)
+        if self.pose_source == "given":
+            if T_world_cam is None:
+                raise InputError("pose_source='given' needs T_world_cam for every frame")
+            if not np.all(np.isfinite(T_world_cam)):
+                raise InputError(f"pose at t={timestamp} contains NaN")
+
+    def _preprocess(self, image: np.ndarray, timestamp: float, depth: np.ndarray | None) -> _Frame:
+        t = time.perf_counter()
+        if image.ndim == 3:
+            import cv2
+            image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        img = self._rectifier(image)
+        pyr = self._image_pyramid(img, self.config.resolution.pyramid_levels)
+        depth_m = self._rectifier.depth(depth) if depth is not None else None
+        self.timers.add("preprocess", (time.perf_counter() - t) * 1e3)
+        if self._t0 is None:
+            self._t0 = float(timestamp)
+        frame = _Frame(self._index, float(timestamp), img, pyr, depth_m)
+        self._index += 1
+        return frame
+
+    # ------------------------------------------------------------------ tracking thread
+    def _current_reference(self) -> _Reference | None:
+        with self._ref_lock:
+            return self._reference
+
+    def _publish(self, ref: _Reference, frame: _Frame, idepth, idepth_var, valid) -> None:
+        with self._ref_lock:
+            self._reference = ref
+        if self.sinks:
+            d = np.where(valid, idepth, np.nan).astype(np.float32)
+            v = np.where(valid, idepth_var, np.nan).astype(np.float32)
+            for s in self.sinks:
+                s.on_map(frame.index, frame.timestamp, ref.T_world_ref, d, v, self.map_intrinsics)
+
+    def _build_reference(self, frame: _Frame, idepth, idepth_var, valid) -> _Reference:
+        from .tracking import TrackingReference
+        t = time.perf_counter()
+        tref = TrackingReference.build(frame.pyramid, idepth, idepth_var, valid, self.map_intrinsics, frame.index)
+        self.timers.add("build_reference", (time.perf_counter() - t) * 1e3)
+        arrays = [np.array(a) for a in (idepth, idepth_var, valid)]
+        for a in arrays:
+            a.setflags(write=False)
+        return _Reference(tref, frame.T_world_cam.copy(), frame.index, *arrays)
+
+    def _initialize(self, frame: _Frame, T_world_cam: np.ndarray, event: str) -> FrameResult:
+        """(Re-)initialise the map in ``frame`` (depth image or random depth)."""
+        from .mapping import MapFrame
+        init = self.config.system.init
+        use_depth = init == "depth" or (init == "auto" and frame.depth_m is not None)
+        if use_depth and frame.depth_m is None:
+            raise InputError("init=depth needs a depth image for the first frame (the sequence has none)")
+        frame.T_world_cam = T_world_cam
+        mf = MapFrame(frame.index, frame.timestamp, frame.image, T_world_cam, 0.0)
+        self._stop_mapping_work()
+        if use_depth:
+            self._mapper.initialize_from_depth(mf, frame.depth_m)
+        else:
+            self._mapper.initialize_random(mf)
+        idepth, idepth_var, valid = self._mapper.current()
+        self._publish(self._build_reference(frame, idepth, idepth_var, valid), frame, idepth, idepth_var, valid)
+        self._initialized = True
+        self.metric = bool(use_depth)
+        self._last_pose = T_world_cam.copy()
+        self._last_good_pose = T_world_cam.copy()
+        self._velocity = np.eye(4)
+        self._lost_count = 0
+        self.counts["tracked"] += 1
+        if event == "reinit":
+            self.counts["reinit"] += 1
+        return FrameResult(frame.index, frame.timestamp, T_world_cam.copy(), False,
+                           {"init": "depth" if use_depth else "random"}, mapped=True, event=event)
+
+    def _process_tracking(self, frame: _Frame, t_start: float) -> FrameResult:
+        if not self._initialized:
+            result = self._initialize(frame, np.eye(4), "init")
+            self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
+            return result
+        ref = self._current_reference()
+        T_ref_world = inverse_se3(ref.T_world_ref)
+        base = self._last_pose if self._lost_count == 0 else self._last_good_pose
+        guess_world = base @ self._velocity if self.config.tracking.constant_velocity else base
+        T_guess = T_ref_world @ guess_world
+        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess)
+        for lvl, ms in tr.level_ms.items():
+            self.timers.add(f"track_lvl{lvl}", ms)
+        quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio),
+                   "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used)}
+        if tr.lost or not np.all(np.isfinite(tr.T_ref_new)):
+            self._lost_count += 1
+            self.counts["lost"] += 1
+            self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
+            if self._lost_count >= self.config.system.max_lost_frames and self._last_good_pose is not None:
+                log.warning("tracking lost for %d frames: re-initialising the map at frame %d",
+                            self._lost_count, frame.index)
+                self.counts["tracked"] -= 1  # _initialize counts it; this frame is the new start
+                res = self._initialize(frame, self._last_good_pose.copy(), "reinit")
+                self.counts["tracked"] += 1
+                self.counts["lost"] -= 1
+                return res
+            return FrameResult(frame.index, frame.timestamp, None, True, quality, event="lost")
+        T_world_new = ref.T_world_ref @ tr.T_ref_new
+        event = "recovered" if self._lost_count > 0 else ""
+        if self._lost_count == 0 and self._last_pose is not None:
+            self._velocity = inverse_se3(self._last_pose) @ T_world_new
+        else:
+            self._velocity = np.eye(4)
+        self._lost_count = 0
+        self._last_pose = T_world_new
+        self._last_good_pose = T_world_new
+        frame.T_world_cam = T_world_new
+        frame.residual = float(tr.residual)
+        self.counts["tracked"] += 1
+        self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
+        mapped = self._hand_to_mapping(frame)
+        return FrameResult(frame.index, frame.timestamp, T_world_new.copy(), False, quality,
+                           mapped=mapped, event=event)
+
+    def _process_given_pose(self, frame: _Frame, T_world_cam: np.ndarray, t_start: float) -> FrameResult:
+        T_world_cam = np.asarray(T_world_cam, dtype=np.float64)
+        if not self._initialized:
+            res = self._initialize(frame, T_world_cam.copy(), "init")
+            self._record_depth_accuracy(frame)
+            return res
+        frame.T_world_cam = T_world_cam.copy()
+        self.counts["tracked"] += 1
+        mapped = self._hand_to_mapping(frame)
+        return FrameResult(frame.index, frame.timestamp, T_world_cam.copy(), False, {}, mapped=mapped)
+
+    def _process_rgbd(self, frame: _Frame, t_start: float) -> FrameResult:
+        """Frame-to-frame RGB-D odometry: track against the previous frame's depth image."""
+        if frame.depth_m is None:
+            raise InputError(f"depth_source='images' needs a depth image for every frame (frame {frame.index} has none)")
+        prev = self._prev_depth_frame
+        if prev is None:
+            T_world_new = np.eye(4)
+            quality: dict = {"init": "depth"}
+            lost = False
+            self._initialized = True
+            self.metric = True
+        else:
+            valid = prev.depth_m > 0
+            idepth = np.where(valid, 1.0 / np.where(valid, prev.depth_m, 1.0), 0.0).astype(np.float32)
+            var = np.full_like(idepth, self.config.mapping.depth_init_var)
+            ref = self._build_reference(prev, idepth, var, valid)
+            base = self._last_pose
+            guess_world = base @ self._velocity if self.config.tracking.constant_velocity else base
+            tr = self._tracker.track(ref.tracking_ref, frame.pyramid, inverse_se3(prev.T_world_cam) @ guess_world)
+            for lvl, ms in tr.level_ms.items():
+                self.timers.add(f"track_lvl{lvl}", ms)
+            quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio),
+                       "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used)}
+            lost = bool(tr.lost) or not np.all(np.isfinite(tr.T_ref_new))
+            # RGB-D odometry has no map to recover with: keep the last pose as the new reference
+            T_world_new = prev.T_world_cam @ tr.T_ref_new if not lost else self._last_pose
+            self._velocity = inverse_se3(self._last_pose) @ T_world_new if not lost else np.eye(4)
+        frame.T_world_cam = T_world_new
+        self._last_pose = T_world_new
+        self._prev_depth_frame = frame
+        self.counts["lost" if lost else "tracked"] += 1
+        self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
+        return FrameResult(frame.index, frame.timestamp, None if lost else T_world_new.copy(), lost, quality,
+                           event="lost" if lost else ("init" if prev is None else ""))
+
+    def _mapping_due(self, frame: _Frame) -> bool:
+        s = self.config.system
+        every = s.map_every_startup if frame.timestamp - self._t0 < s.startup_s else s.map_every
+        return frame.index % every == 0
+
+    def _hand_to_mapping(self, frame: _Frame) -> bool:
+        if self._thread is None:  # sync
+            if not self._mapping_due(frame):
+                return False
+            self._map_frame(frame)
+            return True
+        with self._cond:  # realtime: replace (skip) an older pending frame
+            self._pending = frame
+            self._cond.notify()
+        return False
+
+    def _stop_mapping_work(self) -> None:
+        """Drop a pending frame (used before re-initialisation)."""
+        with self._cond:
+            self._pending = None
+
+    # ------------------------------------------------------------------ mapping thread
+    def _mapping_loop(self) -> None:
+        try:
+            while True:
+                with self._cond:
+                    while self._pending is None and not self._stop:
+                        self._cond.wait()
+                    if self._pending is None and self._stop:
+                        return
+                    frame, self._pending = self._pending, None
+                self._map_frame(frame)
+        except BaseException as err:  # surfaced in the tracking thread
+            log.exception("mapping thread failed")
+            self._map_error = err
+
+    def _map_frame(self, frame: _Frame) -> None:
+        from .mapping import MapFrame
+        t = time.perf_counter()
+        mf = MapFrame(frame.index, frame.timestamp, frame.image, frame.T_world_cam, frame.residual)
+        stats = self._mapper.update(mf)
+        for name, ms in stats.stage_ms.items():
+            self.timers.add(name, ms)
+        idepth, idepth_var, valid = self._mapper.current()
+        ref = self._build_reference(frame, idepth, idepth_var, valid)
+        self.timers.add("mapping", (time.perf_counter() - t) * 1e3)
+        self.counts["mapped"] += 1
+        self._publish(ref, frame, idepth, idepth_var, valid)
+        self._record_depth_accuracy(frame, idepth, valid)
+
+    def _record_depth_accuracy(self, frame: _Frame, idepth=None, valid=None) -> None:
+        if frame.depth_m is None:
+            return
+        from .mapping import depth_accuracy
+        if idepth is None:
+            idepth, _, valid = self._mapper.current()
+        acc = depth_accuracy(idepth, valid, frame.depth_m)
+        acc = {"frame": frame.index, "t": frame.timestamp - self._t0, **acc}
+        self.depth_accuracy_series.append(acc)
+
+
+class _ResizeOnly:
+    """Rectifier for input that is already undistorted: resize (keeping the aspect) + centre crop."""
+
+    def __init__(self, intrinsics: PinholeIntrinsics, width: int, multiple_of: int) -> None:
+        import cv2
+        self._cv2 = cv2
+        h = int(round(width * intrinsics.height / intrinsics.width))
+        scaled = intrinsics.scaled(width, h)
+        w_out, h_out = width - width % multiple_of, h - h % multiple_of
+        if w_out <= 0 or h_out <= 0:
+            raise LiteVOError(f"mapping width {width} too small for a pyramid needing multiples of {multiple_of}")
+        self._x0, self._y0 = (width - w_out) // 2, (h - h_out) // 2
+        self._size = (width, h)
+        self._native = (intrinsics.width, intrinsics.height)
+        self.intrinsics = PinholeIntrinsics(scaled.fx, scaled.fy, scaled.cx - self._x0, scaled.cy - self._y0, w_out, h_out)
+
+    def _check(self, image: np.ndarray) -> None:
+        if (image.shape[1], image.shape[0]) != self._native:
+            raise InputError(f"image is {image.shape[1]}x{image.shape[0]}, the calibration says "
+                             f"{self._native[0]}x{self._native[1]}")
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        self._check(image)
+        img = self._cv2.resize(image.astype(np.float32), self._size, interpolation=self._cv2.INTER_AREA)
+        return np.ascontiguousarray(img[self._y0:self._y0 + self.intrinsics.height, self._x0:self._x0 + self.intrinsics.width])
+
+    def depth(self, depth: np.ndarray) -> np.ndarray:
+        self._check(depth)
+        d = self._cv2.resize(depth.astype(np.float32), self._size, interpolation=self._cv2.INTER_NEAREST)
+        return np.ascontiguousarray(d[self._y0:self._y0 + self.intrinsics.height, self._x0:self._x0 + self.intrinsics.width])
