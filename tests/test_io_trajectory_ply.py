@@ -56,6 +56,19 @@ def test_trajectory_missing_or_empty(tmp_path):
         read_trajectory(tmp_path / "e.txt")
 
 
+def test_pose_interpolation():
+    from lite_vo.geometry import exp_so3, make_pose
+    T0 = make_pose(np.eye(3), np.zeros(3))
+    T1 = make_pose(exp_so3(np.array([0, 0, np.pi / 2])), np.array([2.0, 0, 0]))
+    traj = Trajectory([1.0, 2.0], [T0, T1])
+    mid = traj.pose_at(1.5)
+    np.testing.assert_allclose(mid[:3, 3], [1.0, 0, 0])
+    np.testing.assert_allclose(mid[:3, :3], exp_so3(np.array([0, 0, np.pi / 4])), atol=1e-12)
+    np.testing.assert_array_equal(traj.pose_at(2.0), T1)
+    assert traj.pose_at(0.5) is None and traj.pose_at(2.5) is None
+    assert traj.pose_at(1.5, max_gap=0.5) is None
+
+
 def test_trajectory_and_accelerometer_validation():
     with pytest.raises(ValueError, match="strictly increasing"):
         Trajectory([0.0, 0.0], np.tile(np.eye(4), (2, 1, 1)))

@@ -86,6 +86,27 @@ class Trajectory:
         best = min(cands, key=lambda c: abs(self.timestamps[c] - timestamp))
         return best if abs(self.timestamps[best] - timestamp) <= max_dt else None
 
+    def pose_at(self, timestamp: float, max_gap: float = 0.1) -> Optional[np.ndarray]:
+        """Pose (4, 4) at ``timestamp`` interpolated between the two neighbouring poses (linear
+        translation, geodesic rotation); None outside the trajectory or when the neighbours are
+        more than ``max_gap`` seconds apart. An exact timestamp returns that pose."""
+        from ..geometry import exp_so3, log_so3
+        t = self.timestamps
+        if len(t) == 0 or timestamp < t[0] or timestamp > t[-1]:
+            return None
+        j = int(np.searchsorted(t, timestamp))
+        if t[j] == timestamp:
+            return self.poses[j].copy()
+        i = j - 1
+        if t[j] - t[i] > max_gap:
+            return None
+        a = (timestamp - t[i]) / (t[j] - t[i])
+        T0, T1 = self.poses[i], self.poses[j]
+        out = np.eye(4)
+        out[:3, :3] = T0[:3, :3] @ exp_so3(a * log_so3(T0[:3, :3].T @ T1[:3, :3]))
+        out[:3, 3] = (1 - a) * T0[:3, 3] + a * T1[:3, 3]
+        return out
+
     def transformed(self, T_new_world: np.ndarray) -> "Trajectory":
         """The trajectory expressed in another world frame: ``T_new_world @ T_world_cam``."""
         return Trajectory(self.timestamps, np.asarray(T_new_world, dtype=np.float64) @ self.poses)
