@@ -61,7 +61,7 @@ def test_pose_interpolation():
     T0 = make_pose(np.eye(3), np.zeros(3))
     T1 = make_pose(exp_so3(np.array([0, 0, np.pi / 2])), np.array([2.0, 0, 0]))
     traj = Trajectory([1.0, 2.0], [T0, T1])
-    mid = traj.pose_at(1.5)
+    mid = traj.pose_at(1.5, max_gap=2.0)
     np.testing.assert_allclose(mid[:3, 3], [1.0, 0, 0])
     np.testing.assert_allclose(mid[:3, :3], exp_so3(np.array([0, 0, np.pi / 4])), atol=1e-12)
     np.testing.assert_array_equal(traj.pose_at(2.0), T1)

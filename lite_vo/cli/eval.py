@@ -13,7 +13,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description="Compare an estimated trajectory with ground truth (both TUM format, T_world_cam): "
                     "associate poses by timestamp, align (none / SE(3) / Sim(3), Umeyama), report the "
                     "absolute trajectory error (ATE RMSE, m) and the relative pose error over pairs "
-                    "DELTA seconds apart (RMSE, cm/s and deg/s, as the TUM RGB-D benchmark).")
+                    "--delta-s seconds apart (RMSE, cm/s and deg/s, as the TUM RGB-D benchmark).")
     p.add_argument("--gt", required=True, metavar="GT",
                    help="ground truth: a TUM trajectory file, or a sequence folder that has ground truth")
     p.add_argument("--est", required=True, metavar="EST",
