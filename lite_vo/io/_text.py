@@ -20,7 +20,7 @@ def read_lines(path: Path, what: str = "file") -> list[tuple[int, str]]:
             raise InputError(f"{path}: is not a file")
         raise InputError(f"{path}: {what} not found")
     try:
-        text = path.read_text(encoding="utf-8", errors="strict")
+        text = path.read_text(encoding="utf-8-sig", errors="strict")
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text file") from None
     except OSError as err:
