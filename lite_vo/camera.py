@@ -404,6 +404,8 @@ class Rectifier:
             img = cv2.remap(img, self._map1, self._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if self.factor > 1:
             img = cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
+        if np.shares_memory(img, image):
+            return np.array(img, dtype=np.float32)     # never hand out the caller's buffer
         return np.ascontiguousarray(img, dtype=np.float32)
 
     def depth(self, depth_m: np.ndarray) -> np.ndarray:
