@@ -25,21 +25,26 @@ def _value_noise(rng: np.random.Generator, w: int, h: int, texel_m: float, cell_
 
 
 def face_texture(rng: np.random.Generator, width_m: float, height_m: float, texel_m: float,
-                 base: float, contrast: float = 1.0, shapes_per_m2: float = 14.0) -> np.ndarray:
-    """A float32 (h, w) texture of a ``width_m`` x ``height_m`` face, grey levels ~ 0..255."""
+                 base: float, contrast: float = 1.0, shapes_per_m2: float = 25.0,
+                 feature_scale: float = 1.0) -> np.ndarray:
+    """A float32 (h, w) texture of a ``width_m`` x ``height_m`` face, grey levels ~ 0..255.
+
+    ``feature_scale`` multiplies every physical feature size (noise cells, shapes; the shape
+    density scales with its inverse square): < 1 for close-range scenes."""
     w = max(2, int(math.ceil(width_m / texel_m)))
     h = max(2, int(math.ceil(height_m / texel_m)))
     img = np.full((h, w), base, dtype=np.float32)
+    fs = float(feature_scale)
     for cell_m, amp in NOISE_OCTAVES_M[:2]:
-        img += (amp * contrast) * _value_noise(rng, w, h, texel_m, cell_m)
+        img += (amp * contrast) * _value_noise(rng, w, h, texel_m, cell_m * fs)
     area = width_m * height_m
-    n_shapes = int(rng.poisson(shapes_per_m2 * area)) + (1 if area > 0.02 else 0)
+    n_shapes = int(rng.poisson(shapes_per_m2 * area / fs ** 2)) + (1 if area > 0.02 * fs else 0)
     shift = 4  # cv2 sub-pixel drawing with 1/16 texel precision
     scale = (1 << shift) / texel_m
-    extent = min(max(width_m, height_m), 0.6)
+    extent = min(max(width_m, height_m), 0.6 * fs)
     for _ in range(n_shapes):
         kind = rng.integers(0, 3)
-        size = math.exp(rng.uniform(math.log(0.02), math.log(max(0.03, extent * 0.6))))
+        size = math.exp(rng.uniform(math.log(0.02 * fs), math.log(max(0.03 * fs, extent * 0.7))))
         cx, cy = rng.uniform(0, width_m), rng.uniform(0, height_m)
         value = float(rng.uniform(15.0, 240.0))
         alpha = float(rng.uniform(0.45, 1.0))
@@ -68,13 +73,13 @@ def face_texture(rng: np.random.Generator, width_m: float, height_m: float, texe
         else:  # line segment (edge-like)
             ang = rng.uniform(0, math.pi)
             dx, dy = math.cos(ang) * size * 0.5, math.sin(ang) * size * 0.5
-            thick = max(1, int(round(rng.uniform(0.004, 0.02) / texel_m)))
+            thick = max(1, int(round(rng.uniform(0.004, 0.02) * fs / texel_m)))
             cv2.line(layer, (int((cxr - dx) * scale), int((cyr - dy) * scale)),
                      (int((cxr + dx) * scale), int((cyr + dy) * scale)), value, thick,
                      cv2.LINE_AA, shift)
         roi[...] = alpha * layer + (1.0 - alpha) * roi
     for cell_m, amp in NOISE_OCTAVES_M[2:]:
-        img += (amp * contrast) * _value_noise(rng, w, h, texel_m, cell_m)
+        img += (amp * contrast) * _value_noise(rng, w, h, texel_m, cell_m * fs)
     img = cv2.GaussianBlur(img, (0, 0), 1.0)
     return np.clip(img, 5.0, 250.0).astype(np.float32)
 
