@@ -59,13 +59,6 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     fail = lambda code, length=0.0, err=0.0: (code, 0.0, 0.0, length, err)  # noqa: E731
     if not (prm[K.P_MIN_SCALE] < rescale < prm[K.P_MAX_SCALE]):
         return fail(K.OUT_OF_IMAGE)
-    ep = np.array([epxn, epyn]) * rescale
-    offs = np.arange(-2, 3)
-    cur_pts = np.array([u, v]) + offs[:, None] * ep
-    if not (np.all(cur_pts[[0, -1], 0] > 0) and np.all(cur_pts[[0, -1], 0] < w - 2)
-            and np.all(cur_pts[[0, -1], 1] > 0) and np.all(cur_pts[[0, -1], 1] < h - 2)):
-        return fail(K.OUT_OF_IMAGE)
-    cvals = np.array([bilinear(cur, x, y) for x, y in cur_pts])
     if a[2] + max_id * t[2] < 0.001:
         max_id = (0.001 - a[2]) / t[2]
     if a[2] + min_id * t[2] < 0.001 or max_id < min_id:
@@ -106,6 +99,14 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
             close = close + (h - b - close[1]) / inc[1] * inc
         if not inside(close) or not np.linalg.norm(close - far) >= prm[K.P_MIN_CLIPPED_EPL]:
             return fail(K.OUT_OF_IMAGE)
+    # the five samples in the current image (checked after the line geometry)
+    ep = np.array([epxn, epyn]) * rescale
+    offs = np.arange(-2, 3)
+    cur_pts = np.array([u, v]) + offs[:, None] * ep
+    if not (np.all(cur_pts[[0, -1], 0] > 0) and np.all(cur_pts[[0, -1], 0] < w - 2)
+            and np.all(cur_pts[[0, -1], 1] > 0) and np.all(cur_pts[[0, -1], 1] < h - 2)):
+        return fail(K.OUT_OF_IMAGE)
+    cvals = np.array([bilinear(cur, x, y) for x, y in cur_pts])
     n = int(np.linalg.norm(close - far) + 1e-6) + 1
     n = min(n, scratch_len - 4)
     positions = far + np.arange(n)[:, None] * inc
@@ -160,6 +161,19 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     return K.OK, idepth, alpha ** 2 * (c + geo + photo), length, err
 
 
+def line_length(u, v, min_id, max_id, R, t, fx, fy, cx, cy):
+    a = R @ np.array([(u - cx) / fx, (v - cy) / fy, 1.0])
+    t = np.asarray(t, float)
+    if a[2] + max_id * t[2] < 0.001:
+        max_id = (0.001 - a[2]) / t[2]
+    if not (a[2] + min_id * t[2] >= 0.001 and max_id >= min_id):
+        return math.inf
+    Kmat = np.array([[fx, 0, 0], [0, fy, 0], [0, 0, 1.0]])
+    p0, p1 = Kmat @ (a + min_id * t), Kmat @ (a + max_id * t)
+    n = float(np.linalg.norm(p1[:2] / p1[2] - p0[:2] / p0[2]))
+    return n if math.isfinite(n) else math.inf
+
+
 def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c, ref_residual,
             st, fx, fy, cx, cy, prm, stride, offset, scratch_len):
     """Twin of ``observe_kernel``; ``st`` is a dict of the state arrays (modified in place)."""
@@ -189,7 +203,11 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
                 older = [i for i in range(nref) if ref_ids[i] >= st["ref_id"][y, x]]
                 b = older[0] if older else nref - 1
             else:
-                px, py, prior, lo, hi, b = float(x), float(y), prm[K.P_CREATE_PRIOR], 0.0, prm[K.P_MAX_IDEPTH], 0
+                px, py, prior, lo, hi = float(x), float(y), prm[K.P_CREATE_PRIOR], 0.0, prm[K.P_MAX_IDEPTH]
+                # oldest reference such that it and every newer one has a full-range line <= max_epl
+                b = nref - 1
+                while b > 0 and line_length(px, py, lo, hi, ref_R[b - 1], ref_t[b - 1], fx, fy, cx, cy) <= prm[K.P_MAX_EPL]:
+                    b -= 1
             code, used = K.OUT_OF_IMAGE, b
             while b < nref:
                 ok, ex, ey = epipolar_direction(cur, x, y, px, py, ref_c[b], fx, fy, cx, cy, prm)
@@ -208,6 +226,8 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
             if code in (K.OUT_OF_IMAGE, K.TOO_LONG, K.NUMERIC):
                 status[y, x] = 5
                 continue
+            if has:
+                st["ref_id"][y, x] = max(st["ref_id"][y, x], ref_ids[used])
             if not has:
                 if code == K.OK and r_var <= prm[K.P_MAX_VAR]:
                     for k, val in (("idepth", r_id), ("idepth_var", r_var), ("idepth_s", r_id), ("var_s", r_var),

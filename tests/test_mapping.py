@@ -416,20 +416,24 @@ def test_fill_matches_naive():
     rng = np.random.default_rng(6)
     st = _random_state(rng, 26, 33, 0.5)
     mg = rng.uniform(0, 10, (26, 33)).astype(np.float32)
-    o = [st[k].copy() for k in ("idepth", "idepth_var", "idepth_s", "var_s", "valid", "validity", "pos_x", "pos_y",
-                                "ref_id")]
-    K.fill_kernel(st["idepth"], st["idepth_var"], st["valid"], st["validity"], st["ref_id"], st["blacklist"], mg, 5.0,
-                  -1, 30.0, 100.0, 0.125, 0.0, *o)
+    names = ("idepth", "idepth_var", "idepth_s", "var_s", "valid", "validity", "pos_x", "pos_y", "ref_id")
+    o = {k: st[k].copy() for k in names}
+    flag = np.zeros_like(st["valid"])
+    K.fill_kernel(*(o[k] for k in names), st["blacklist"], mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0, flag)
     created = naive.fill(st["idepth"], st["idepth_var"], st["valid"], st["validity"], st["ref_id"], st["blacklist"],
                          mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0)
-    new = np.argwhere((o[4] == 1) & (st["valid"] == 0))
-    assert {tuple(p) for p in new} == set(created)
+    assert {tuple(p) for p in np.argwhere(flag)} == set(created)
     assert len(created) > 5
+    np.testing.assert_array_equal(o["valid"], st["valid"])           # valid is left to the caller
+    old = st["valid"] == 1
+    for k in names:                                                   # existing hypotheses untouched
+        np.testing.assert_array_equal(o[k][old], st[k][old])
     for (y, x), (d, rid) in created.items():
-        assert o[0][y, x] == pytest.approx(d, rel=1e-5)
-        assert o[1][y, x] == pytest.approx(0.125)
-        assert o[8][y, x] == rid
-        assert (o[6][y, x], o[7][y, x]) == (x, y)
+        assert o["idepth"][y, x] == pytest.approx(d, rel=1e-5)
+        assert o["idepth_s"][y, x] == pytest.approx(d, rel=1e-5)
+        assert o["idepth_var"][y, x] == pytest.approx(0.125)
+        assert o["ref_id"][y, x] == rid
+        assert (o["pos_x"][y, x], o["pos_y"][y, x]) == (x, y)
 
 
 # ----------------------------------------------------------------------------- Mapper

@@ -113,34 +113,18 @@ def _frames_io(seq_dir: Path, map_width: int):
     return rect.intrinsics, frames(), len(seq)
 
 
-def _frames_synth(trajectory: str, n_frames: int, map_width: int, seed: int):
-    from lite_vo.synth import iter_frames
-    it = iter_frames(scene="room", trajectory=trajectory, n_frames=n_frames, seed=seed)
-    first = next(iter([it]))
-    frames_list = []
-    K = None
-    for fr in first:
-        frames_list.append(fr)
-    # SynthFrame: (index, timestamp, image, depth, T_world_cam, intrinsics?) -- adapt by attribute names
-    import cv2
-    f0 = frames_list[0]
-    K0 = getattr(f0, "intrinsics", None)
-    if K0 is None:
-        from lite_vo.synth import default_intrinsics
-        h0, w0 = f0.image.shape
-        K0 = default_intrinsics(w0, h0)
-    mh = int(round(K0.height * map_width / K0.width))
-    K = K0.scaled(map_width, mh)
+def _frames_synth(trajectory: str, n_frames: int, map_width: int, seed: int, noise: float):
+    """lite_vo.synth room scene rendered directly at the mapping resolution (exact depth and poses)."""
+    from lite_vo.synth import default_intrinsics, iter_frames
+    mh = map_width * 3 // 4
+    K = default_intrinsics(map_width, mh)
 
     def frames():
-        for fr in frames_list:
-            img = np.asarray(fr.image, np.float32)
-            depth = np.asarray(fr.depth, np.float32)
-            if img.shape != (mh, map_width):
-                img = cv2.resize(img, (map_width, mh), interpolation=cv2.INTER_AREA)
-                depth = cv2.resize(depth, (map_width, mh), interpolation=cv2.INTER_NEAREST)
-            yield fr.index, fr.timestamp, img, depth, np.asarray(fr.T_world_cam)
-    return K, frames(), len(frames_list)
+        for fr in iter_frames(scene="room", trajectory=trajectory, n_frames=n_frames, seed=seed,
+                              width=map_width, height=mh, noise_sigma=noise):
+            yield fr.index, fr.timestamp, np.asarray(fr.image, np.float32), np.asarray(fr.depth, np.float32), \
+                np.asarray(fr.T_world_cam, np.float64)
+    return K, frames(), n_frames
 
 
 def run(args) -> dict:
@@ -155,7 +139,7 @@ def run(args) -> dict:
         overrides[k.strip()] = _parse_value(v.strip())
     cfg = dataclasses.replace(MappingConfig(), **overrides)
     if args.synth:
-        K, frames, n = _frames_synth(args.synth, args.frames or 150, args.width, args.seed)
+        K, frames, n = _frames_synth(args.synth, args.frames or 150, args.width, args.seed, args.noise)
         name = f"synth_{args.synth}"
     else:
         seq_dir = Path(args.sequence)
@@ -259,6 +243,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("sequence", nargs="?", default=str(ROOT.parent / "shared" / "data" / "icl_livingroom_211"))
     ap.add_argument("--synth", default=None, help="use lite_vo.synth (room scene) with this trajectory instead")
+    ap.add_argument("--noise", type=float, default=0.0, help="synthetic image noise sigma (grey levels)")
     ap.add_argument("--init", choices=("random", "depth"), default="random")
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--frames", type=int, default=0, help="stop after this many input frames (0 = all)")

@@ -127,6 +127,26 @@ def epipolar_direction(cur, x, y, px, py, c, fx, fy, cx, cy, prm):
 
 
 @njit(cache=True, nogil=True, fastmath=False)
+def line_length(u, v, min_id, max_id, R, t, fx, fy, cx, cy):
+    """Length in pixels of the epipolar segment of inverse depths [min_id, max_id] (inf if unusable)."""
+    rx = (u - cx) / fx
+    ry = (v - cy) / fy
+    ax = R[0, 0] * rx + R[0, 1] * ry + R[0, 2]
+    ay = R[1, 0] * rx + R[1, 1] * ry + R[1, 2]
+    az = R[2, 0] * rx + R[2, 1] * ry + R[2, 2]
+    if az + max_id * t[2] < 0.001:
+        max_id = (0.001 - az) / t[2]
+    zf = az + min_id * t[2]
+    zc = az + max_id * t[2]
+    if not (zf >= 0.001 and max_id >= min_id):
+        return np.inf
+    dx = fx * ((ax + max_id * t[0]) / zc - (ax + min_id * t[0]) / zf)
+    dy = fy * ((ay + max_id * t[1]) / zc - (ay + min_id * t[1]) / zf)
+    n = math.sqrt(dx * dx + dy * dy)
+    return n if math.isfinite(n) else np.inf
+
+
+@njit(cache=True, nogil=True, fastmath=False)
 def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, fy, cx, cy,
                 gxi, gyi, track_residual, prm, allow_long, samples, ssd):
     """Search the epipolar line of current pixel (u, v) in ``ref``.
@@ -145,22 +165,6 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     rescale = az + prior_id * tz
     if not (rescale > prm[P_MIN_SCALE] and rescale < prm[P_MAX_SCALE]):
         return OUT_OF_IMAGE, 0.0, 0.0, 0.0, 0.0
-    # the five samples in the current image, one (scaled) pixel apart along the line
-    sx = epxn * rescale
-    sy = epyn * rescale
-    first_x = u - 2.0 * sx
-    first_y = v - 2.0 * sy
-    last_x = u + 2.0 * sx
-    last_y = v + 2.0 * sy
-    if not (first_x > 0.0 and first_x < w - 2.0 and first_y > 0.0 and first_y < h - 2.0
-            and last_x > 0.0 and last_x < w - 2.0 and last_y > 0.0 and last_y < h - 2.0):
-        return OUT_OF_IMAGE, 0.0, 0.0, 0.0, 0.0
-    c0 = _bilinear(cur, u - 2.0 * sx, v - 2.0 * sy)
-    c1 = _bilinear(cur, u - sx, v - sy)
-    c2 = _bilinear(cur, u, v)
-    c3 = _bilinear(cur, u + sx, v + sy)
-    c4 = _bilinear(cur, u + 2.0 * sx, v + 2.0 * sy)
-
     # far and near end of the inverse depth interval, projected into the reference
     if az + max_id * tz < 0.001:
         max_id = (0.001 - az) / tz
@@ -223,6 +227,22 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
         if (not (close_x > b and close_x < w - b and close_y > b and close_y < h - b)
                 or not (math.sqrt(dxl * dxl + dyl * dyl) >= prm[P_MIN_CLIPPED_EPL])):
             return OUT_OF_IMAGE, 0.0, 0.0, 0.0, 0.0
+    # the five samples in the current image, one (scaled) pixel apart along the line
+    sx = epxn * rescale
+    sy = epyn * rescale
+    first_x = u - 2.0 * sx
+    first_y = v - 2.0 * sy
+    last_x = u + 2.0 * sx
+    last_y = v + 2.0 * sy
+    if not (first_x > 0.0 and first_x < w - 2.0 and first_y > 0.0 and first_y < h - 2.0
+            and last_x > 0.0 and last_x < w - 2.0 and last_y > 0.0 and last_y < h - 2.0):
+        return OUT_OF_IMAGE, 0.0, 0.0, 0.0, 0.0
+    c0 = _bilinear(cur, u - 2.0 * sx, v - 2.0 * sy)
+    c1 = _bilinear(cur, u - sx, v - sy)
+    c2 = _bilinear(cur, u, v)
+    c3 = _bilinear(cur, u + sx, v + sy)
+    c4 = _bilinear(cur, u + 2.0 * sx, v + 2.0 * sy)
+
     dxl = close_x - far_x
     dyl = close_y - far_y
     n_steps = int(math.sqrt(dxl * dxl + dyl * dyl) + 1e-6) + 1
@@ -369,7 +389,11 @@ def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, 
                 prior = prm[P_CREATE_PRIOR]
                 lo = 0.0
                 hi = max_idepth_all
-                b = 0
+                # the oldest reference whose full-range line still fits: walk back from the newest
+                b = nref - 1
+                while b > 0 and line_length(px, py, lo, hi, ref_R[b - 1], ref_t[b - 1], fx, fy, cx,
+                                            cy) <= prm[P_MAX_EPL]:
+                    b -= 1
             code = OUT_OF_IMAGE
             r_id = 0.0
             r_var = 0.0
@@ -393,6 +417,8 @@ def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, 
             if code == OUT_OF_IMAGE or code == TOO_LONG or code == NUMERIC:
                 status[y, x] = 5
                 continue
+            if has and ref_ids[used] > ref_id[y, x]:
+                ref_id[y, x] = ref_ids[used]     # older references were unusable: skip them from now on
             if not has:
                 if code == OK and r_var <= prm[P_MAX_VAR]:
                     idepth[y, x] = r_id
@@ -580,13 +606,16 @@ def regularize_kernel(idepth, idepth_var, valid, validity, blacklist, radius, di
 
 
 @njit(cache=True, nogil=True, fastmath=False, parallel=True)
-def fill_kernel(idepth, idepth_var, valid, validity, ref_id, blacklist, maxgrad, min_grad,
-                min_blacklist, create_th, unblacklist_th, new_var, new_validity,
-                o_idepth, o_var, o_idepth_s, o_var_s, o_valid, o_validity, o_pos_x, o_pos_y,
-                o_ref_id):
+def fill_kernel(idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist,
+                maxgrad, min_grad, min_blacklist, create_th, unblacklist_th, new_var, new_validity,
+                new_flag):
     """Create hypotheses in empty pixels with gradient >= min_grad whose 5x5 validity sum
     exceeds ``create_th`` (``unblacklist_th`` for pixels with blacklist < min_blacklist), as the
-    inverse-variance mean of the valid neighbours. Reads the inputs, writes only the ``o_*`` copies."""
+    inverse-variance mean of the valid neighbours.
+
+    Writes only EMPTY pixels (and sets ``new_flag`` there); ``valid`` is not modified, so every
+    read sees the map before filling. The caller then sets ``valid |= new_flag``.
+    """
     h, w = idepth.shape
     for y in prange(2, h - 2):
         for x in range(2, w - 2):
@@ -613,15 +642,15 @@ def fill_kernel(idepth, idepth_var, valid, validity, ref_id, blacklist, maxgrad,
             if not (si > 0.0):
                 continue
             m = s / si
-            o_idepth[y, x] = m
-            o_idepth_s[y, x] = m
-            o_var[y, x] = new_var
-            o_var_s[y, x] = new_var
-            o_valid[y, x] = 1
-            o_validity[y, x] = new_validity
-            o_pos_x[y, x] = x
-            o_pos_y[y, x] = y
-            o_ref_id[y, x] = rid
+            idepth[y, x] = m
+            idepth_s[y, x] = m
+            idepth_var[y, x] = new_var
+            var_s[y, x] = new_var
+            validity[y, x] = new_validity
+            pos_x[y, x] = x
+            pos_y[y, x] = y
+            ref_id[y, x] = rid
+            new_flag[y, x] = 1
 
 
 def warmup() -> None:

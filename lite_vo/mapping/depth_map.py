@@ -39,7 +39,8 @@ class MapFrame:
 class MappingStats:
     """What one :meth:`Mapper.update` did. Times in ms; counts in pixels."""
     frame_id: int = -1
-    stage_ms: dict = field(default_factory=dict)
+    stage_ms: dict = field(default_factory=dict)          # wall-clock ms per stage
+    stage_cpu_ms: dict = field(default_factory=dict)      # CPU time of the calling thread per stage
     propagated: int = 0         # hypotheses that survived propagation (after collisions)
     dropped_border: int = 0
     dropped_intensity: int = 0
@@ -157,6 +158,9 @@ class Mapper:
         self._rng = np.random.default_rng(seed)
         self._params = stereo_params(config)
         self.state = _State(self.h, self.w)
+        self._spare = _State(self.h, self.w)
+        self._grid_x = self.state.pos_x.copy()
+        self._grid_y = self.state.pos_y.copy()
         self._cur: _Prepared | None = None
         self._buf_images = np.zeros((config.buffer_size, self.h, self.w), np.float32)
         self._buffer: list[tuple[MapFrame, int]] = []   # (frame, slot), oldest first
@@ -238,21 +242,24 @@ class Mapper:
             raise InputError("Mapper.update: the map is not initialised (call initialize_random "
                              "or initialize_from_depth first)")
         stats = MappingStats(frame_id=int(frame.frame_id))
-        t0 = time.perf_counter()
+        clock, cpu = time.perf_counter, time.thread_time
+        t0, c0 = clock(), cpu()
         if frame.frame_id != self._cur.frame.frame_id:
             prep = self._check_frame(frame)
             self._propagate(prep, stats)
             self._push_reference(self._cur)
             self._cur = prep
-        t1 = time.perf_counter()
+        t1, c1 = clock(), cpu()
         self._observe(stats)
-        t2 = time.perf_counter()
+        t2, c2 = clock(), cpu()
         self._regularize(stats)
-        t3 = time.perf_counter()
+        t3, c3 = clock(), cpu()
         self._fill(stats)
-        t4 = time.perf_counter()
+        t4, c4 = clock(), cpu()
         stats.stage_ms = {"propagate": 1e3 * (t1 - t0), "observe": 1e3 * (t2 - t1),
                           "regularize": 1e3 * (t3 - t2), "fill": 1e3 * (t4 - t3)}
+        stats.stage_cpu_ms = {"propagate": 1e3 * (c1 - c0), "observe": 1e3 * (c2 - c1),
+                              "regularize": 1e3 * (c3 - c2), "fill": 1e3 * (c4 - c3)}
         stats.valid_count = int(np.count_nonzero(self.state.valid))
         stats.references = len(self._buffer)
         self._last_costs = {"observe_ms": stats.stage_ms["observe"],
@@ -286,8 +293,11 @@ class Mapper:
         T_new_old = np.linalg.inv(new.frame.T_world_cam) @ np.asarray(self._cur.frame.T_world_cam, np.float64)
         R = np.ascontiguousarray(T_new_old[:3, :3])
         t = np.ascontiguousarray(T_new_old[:3, 3])
-        ns = _State(self.h, self.w)
-        ns.blacklist[:] = old.blacklist     # blacklist stays with the pixel location
+        ns = self._spare                    # double buffer: only valid and positions need resetting
+        ns.valid[:] = 0
+        np.copyto(ns.pos_x, self._grid_x)   # pixels left empty keep their integer position
+        np.copyto(ns.pos_y, self._grid_y)
+        np.copyto(ns.blacklist, old.blacklist)   # the blacklist stays with the pixel location
         fx, fy, cx, cy = self._intr()
         cap = cfg.validity_max + cfg.validity_max_grad
         res = K.propagate_kernel(
@@ -297,11 +307,7 @@ class Mapper:
             float(cfg.prop_merge_fac), float(cfg.propagation_sigma), float(cap),
             ns.idepth, ns.idepth_var, ns.idepth_s, ns.var_s, ns.valid, ns.validity, ns.pos_x,
             ns.pos_y, ns.ref_id)
-        # pixels without a hypothesis keep their integer position
-        empty = ns.valid == 0
-        yy, xx = np.nonzero(empty)
-        ns.pos_x[yy, xx] = xx
-        ns.pos_y[yy, xx] = yy
+        self._spare = old
         self.state = ns
         stats.propagated = int(np.count_nonzero(ns.valid))
         _, stats.dropped_border, stats.dropped_intensity, stats.occluded, stats.fused_on_propagation = map(int, res)
@@ -370,16 +376,14 @@ class Mapper:
 
     def _fill(self, stats: MappingStats) -> None:
         s, cfg, cur = self.state, self.config, self._cur
-        o = [a.copy() for a in (s.idepth, s.idepth_var, s.idepth_s, s.var_s, s.valid, s.validity,
-                                s.pos_x, s.pos_y, s.ref_id)]
-        n_before = int(np.count_nonzero(s.valid))
-        K.fill_kernel(s.idepth, s.idepth_var, s.valid, s.validity, s.ref_id, s.blacklist,
-                      cur.maxgrad, float(cfg.min_grad), int(cfg.min_blacklist),
-                      float(cfg.fill_validity_sum), float(cfg.unblacklist_validity_sum),
-                      float(cfg.init_var), float(cfg.fill_validity), *o)
-        (s.idepth, s.idepth_var, s.idepth_s, s.var_s, s.valid, s.validity, s.pos_x, s.pos_y,
-         s.ref_id) = o
-        stats.filled = int(np.count_nonzero(s.valid)) - n_before
+        new_flag = np.zeros_like(s.valid)
+        K.fill_kernel(s.idepth, s.idepth_var, s.idepth_s, s.var_s, s.valid, s.validity, s.pos_x,
+                      s.pos_y, s.ref_id, s.blacklist, cur.maxgrad, float(cfg.min_grad),
+                      int(cfg.min_blacklist), float(cfg.fill_validity_sum),
+                      float(cfg.unblacklist_validity_sum), float(cfg.init_var),
+                      float(cfg.fill_validity), new_flag)
+        s.valid |= new_flag
+        stats.filled = int(np.count_nonzero(new_flag))
 
     # ------------------------------------------------------------------ output
     def current(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
