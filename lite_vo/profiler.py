@@ -829,25 +829,32 @@ def summarise_init_study(records: Sequence[dict], bin_s: float = INIT_ERROR_WIND
     """Success rate and mean depth / tracking error over time of the successful runs."""
     n = len(records)
     ok = [r for r in records if r.get("success")]
-    t_max = 0.0
-    depth_samples, drift_samples = [], []
-    for r in ok:
-        if r.get("depth_series"):
-            t = np.array([x["t"] for x in r["depth_series"]], float)
-            e = np.array([x["median_abs_rel_error"] for x in r["depth_series"]], float)
-            depth_samples.append((t, e))
-            t_max = max(t_max, float(t.max()))
-        if r.get("drift_series") and r["drift_series"]["t"]:
-            t = np.array(r["drift_series"]["t"], float)
-            drift_samples.append((t, np.array(r["drift_series"]["error"], float)))
-            t_max = max(t_max, float(t.max()))
+
+    def over_time(runs: list[dict]) -> tuple[dict | None, dict | None]:
+        t_max = 0.0
+        depth_samples, drift_samples = [], []
+        for r in runs:
+            if r.get("depth_series"):
+                t = np.array([x["t"] for x in r["depth_series"]], float)
+                e = np.array([x["median_abs_rel_error"] for x in r["depth_series"]], float)
+                depth_samples.append((t, e))
+                t_max = max(t_max, float(t.max()))
+            if r.get("drift_series") and r["drift_series"]["t"]:
+                t = np.array(r["drift_series"]["t"], float)
+                drift_samples.append((t, np.array(r["drift_series"]["error"], float)))
+                t_max = max(t_max, float(t.max()))
+        return (_binned_mean(depth_samples, bin_s, t_max) if depth_samples else None,
+                _binned_mean(drift_samples, bin_s, t_max) if drift_samples else None)
+
+    depth_ok, drift_ok = over_time(ok)
+    depth_all, drift_all = over_time([r for r in records if r["status"] != "crash"])
     return {
         "runs": n, "successes": len(ok), "success_rate": (len(ok) / n) if n else None,
         "crashed": sum(r["status"] == "crash" for r in records),
         "criterion": {"depth_error_max": INIT_DEPTH_ERROR_MAX, "depth_at_s": INIT_DEPTH_AT_S,
                       "drift_max": INIT_DRIFT_MAX, "drift_frames": INIT_DRIFT_FRAMES},
-        "depth_error_over_time": _binned_mean(depth_samples, bin_s, t_max) if depth_samples else None,
-        "tracking_error_over_time": _binned_mean(drift_samples, bin_s, t_max) if drift_samples else None,
+        "depth_error_over_time": depth_ok, "tracking_error_over_time": drift_ok,
+        "depth_error_over_time_all": depth_all, "tracking_error_over_time_all": drift_all,
     }
 
 
@@ -1033,6 +1040,7 @@ def run_profile(settings: ProfileSettings, runner: Runner | None = None, evaluat
             log(f"warning: {seq}: no ground truth ({err})")
             gts[name] = None
 
+    report["workers"] = int(s.workers or default_workers())
     if s.warmup and runner is None:
         log("warming up numba kernels (lite-vo warmup) ...")
         report["warmup"] = run_warmup_subprocess()

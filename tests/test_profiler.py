@@ -513,3 +513,26 @@ def test_init_runs_use_the_init_child_with_random_init(tmp_path):
     cmd = " ".join(P.build_run_command(spec))
     assert "-m lite_vo.profiler init-run" in cmd and f"--seed {spec.seed}" in cmd
     assert f"--start-frame {spec.start_frame}" in cmd and "--set system.numba_threads=1" in cmd
+
+
+def test_cli_passes_its_options_to_the_profiler(tmp_path, monkeypatch, capsys):
+    from lite_vo.cli.main import main
+    seen = {}
+
+    def fake_run_profile(settings, log=None, command=None):
+        seen["s"] = settings
+        return {"counts": {"ok": 1, "fail": 0, "crash": 0}}
+
+    monkeypatch.setattr(P, "run_profile", fake_run_profile)
+    seq = make_sequence(tmp_path / "d")
+    rc = main(["profile", str(seq), "--profiles", "phone,board", "--repeat", "2", "--workers", "1", "--pin-core",
+               "--max-frames", "40", "--init", "depth", "--out", str(tmp_path / "o"), "--no-startup", "--force"])
+    s = seen["s"]
+    assert rc == 0 and "1 ok" in capsys.readouterr().out
+    assert (s.profiles, s.repeat, s.workers, s.pin_core, s.max_frames, s.init, s.force, s.startup) == \
+        (["phone", "board"], 2, 1, True, 40, "depth", True, False)
+    assert main(["profile", str(seq), "--init-study", "3", "--out", str(tmp_path / "o2")]) == 0
+    assert seen["s"].init_study == 3 and seen["s"].profiles == ["phone"]  # the paper's study used phone
+    assert main(["profile", str(seq), "--workers", "0"]) == 1
+    assert main(["profile", str(seq), "--profiles", "phone,nosuch"]) == 1
+    assert "nosuch" in capsys.readouterr().err
