@@ -163,6 +163,8 @@ class ARSink(_SinkBase):
     def on_frame(self, result, image) -> None:
         t_frame = time.perf_counter()
         ts = float(result.timestamp)
+        if getattr(result, "event", "") == "reinit" and self.physics is not None and not self.metric:
+            self._reset_world()                  # a new monocular map has a new scale: start over
         T = None if result.T_world_cam is None or getattr(result, "lost", False) else np.asarray(result.T_world_cam)
         if T is not None:
             self._feed_imu(ts, T)
@@ -239,6 +241,15 @@ class ARSink(_SinkBase):
         self.events.append(f"start frame {frame_id}: ground {ground.source}, scale {frame.scale:.3f}")
         if self.cfg.async_world:
             self.builder = AsyncWorldModelBuilder(self.cfg, ground)
+
+    def _reset_world(self) -> None:
+        if self.builder is not None:
+            self.builder.close()
+        if self.physics is not None:
+            self.physics.close()
+        self.builder = self.physics = self.world = self.ground = None
+        self._first_map_ts = None
+        self.events.append("reset after re-initialisation of the VO map")
 
     def _ground_hit(self, T: np.ndarray, intr: PinholeIntrinsics, u: float, v: float):
         """Physics-frame xy of the ground point seen at pixel (u, v), or None."""
@@ -325,19 +336,25 @@ class ARSink(_SinkBase):
         up = self.ground.normal_world
         mesh = self.world.mesh
         C = T[:3, 3]
-        fwd = T[:3, 2]
+        k = up / np.linalg.norm(up)
+        # look at the ground point in the middle of the view (else one scene depth ahead)
         dist = self.scene_depth or 1.0
-        centre = C + fwd * dist
+        centre = C + T[:3, 2] * dist
+        hit = self.ground.idepth_at(T, self.intr, np.array([self.intr.cx]), np.array([self.intr.cy]))[0]
+        if hit > 0 and 1.0 / hit < 3 * dist:
+            centre = C + T[:3, :3] @ np.array([0.0, 0.0, 1.0 / hit])
+        d = C - centre
+        h = d - (d @ k) * k
+        h = h / (np.linalg.norm(h) + 1e-12)
         az = math.radians(self.cfg.panel_view_azimuth_deg)
         el = math.radians(self.cfg.panel_view_elevation_deg)
-        off = C - centre
-        k = up / np.linalg.norm(up)
-        off = (off * math.cos(az) + np.cross(k, off) * math.sin(az) + k * (k @ off) * (1 - math.cos(az)))
-        horiz = off - (off @ k) * k
-        eye = centre + horiz * math.cos(el) * 1.6 + k * (np.linalg.norm(off) * math.sin(el) * 1.6 + (off @ k))
+        h = h * math.cos(az) + np.cross(k, h) * math.sin(az)          # rotate about the up axis
+        r = 1.3 * np.linalg.norm(d)
+        eye = centre + r * (math.cos(el) * h + math.sin(el) * k)
         Tv = look_at(eye, centre, up)
         intr = self.intr.scaled(pw, ph)
-        intr = PinholeIntrinsics(intr.fx * 0.7, intr.fy * 0.7, intr.cx, intr.cy, pw, ph)
+        intr = PinholeIntrinsics(intr.fx * 0.8, intr.fy * 0.8, intr.cx, intr.cy, pw, ph)
+        dist = np.linalg.norm(d)
         near, far = self._near_far()
         # camera frustum of the current view
         c = self.intr
