@@ -1,0 +1,79 @@
+"""`lite-vo run`: the file contract, the overwrite rule and one-line errors."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from lite_vo.cli.main import main
+from lite_vo.io import read_ply, read_trajectory
+
+STAT_KEYS = {"count", "mean", "std", "median", "p95"}
+
+
+def test_run_writes_the_contract_files(synth_small, tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(["run", str(synth_small), "--out", str(out), "--max-frames", "16", "--quiet", "--init", "depth"])
+    assert code == 0
+    assert "16 of 16 frames tracked" in capsys.readouterr().out
+    traj = read_trajectory(out / "trajectory.txt")
+    assert len(traj) == 16 and np.all(np.diff(traj.timestamps) > 0)
+    timing = json.loads((out / "timing.json").read_text())
+    assert STAT_KEYS <= set(timing["tracking"]) and STAT_KEYS <= set(timing["mapping"])
+    assert timing["tracking"]["count"] == 16 and timing["mapping"]["count"] >= 3
+    assert {"propagate", "observe", "regularize", "fill"} <= set(timing["stages"])
+    assert timing["frames"] == {"in": 16, "tracked": 16, "lost": 0, "dropped": 0}
+    assert timing["wall_s"] > 0
+    run = json.loads((out / "run.json").read_text())
+    assert {"profile", "config", "versions", "sequence", "status", "depth_accuracy"} <= set(run)
+    assert run["profile"] == "phone" and run["status"] == "ok"
+    assert run["config"]["resolution"]["map_width"] == 320
+    assert set(run["depth_accuracy"]) == {"density", "median_abs_rel_error", "within_5pct", "within_10pct", "frames"}
+    ply = read_ply(out / "map.ply")
+    xyz = np.stack([ply["x"], ply["y"], ply["z"]], axis=1)
+    assert xyz.shape[0] > 1000 and np.all(np.isfinite(xyz))
+    assert "idepth_var" in ply and np.all(ply["idepth_var"] > 0)
+
+
+def test_existing_output_is_not_overwritten_without_force(synth_small, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("user data")
+    assert main(["run", str(synth_small), "--out", str(out), "--max-frames", "3", "--quiet"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--force" in err
+    assert (out / "keep.txt").read_text() == "user data"
+    assert main(["run", str(synth_small), "--out", str(out), "--max-frames", "3", "--quiet", "--force"]) == 0
+    assert (out / "trajectory.txt").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["run", "/nonexistent/seq"], "/nonexistent/seq"),
+    (["run", "{seq}", "--profile", "nosuchprofile"], "unknown profile"),
+    (["run", "{seq}", "--set", "tracking.nosuchkey=1"], "tracking.nosuchkey"),
+    (["run", "{seq}", "--set", "resolution.map_width=-5"], "resolution.map_width"),
+    (["run", "{seq}", "--max-frames", "0"], "--max-frames"),
+    (["run", "{seq}", "--start-frame", "1000"], "--start-frame"),
+])
+def test_bad_input_gives_one_line_error(synth_small, tmp_path, capsys, args, message):
+    args = [a.replace("{seq}", str(synth_small)) for a in args] + ["--out", str(tmp_path / "o"), "--quiet"]
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert message in err
+
+
+def test_poses_gt_needs_ground_truth(tmp_path, capsys):
+    from data_helpers import write_image_folder
+    folder = write_image_folder(tmp_path, n=3)
+    assert main(["run", str(folder), "--poses", "gt", "--out", str(tmp_path / "o"), "--quiet"]) == 1
+    assert "ground truth" in capsys.readouterr().err
+
+
+def test_console_script_help_lists_commands():
+    out = subprocess.run([sys.executable, "-m", "lite_vo.cli.main", "--help"], capture_output=True, text=True, check=True).stdout
+    for cmd in ("run", "eval", "synth", "profile", "warmup"):
+        assert cmd in out

@@ -1,0 +1,147 @@
+"""VisualOdometry end to end on a small synthetic sequence: determinism, accuracy, threads,
+loss and recovery, sinks, bad input."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import lite_vo
+from lite_vo.errors import InputError
+from lite_vo.eval import evaluate
+from lite_vo.io import Trajectory
+from lite_vo.runner import run_sequence
+from lite_vo.system import OutputSink, VisualOdometry
+
+
+def _traj(res):
+    return Trajectory(np.asarray(res.timestamps), np.asarray(res.poses).reshape(-1, 4, 4))
+
+
+def _frames(path, n=None):
+    seq = lite_vo.open_sequence(path)
+    frames = list(seq)
+    return seq, frames[:n] if n else frames
+
+
+def test_sync_mode_is_deterministic(synth_small):
+    cfg = lite_vo.load_profile("phone", ['system.init="depth"'])
+    a = run_sequence(synth_small, cfg, max_frames=30)
+    b = run_sequence(synth_small, cfg, max_frames=30)
+    assert len(a.poses) == len(b.poses) == 30
+    assert np.array_equal(np.asarray(a.poses), np.asarray(b.poses))
+
+
+def test_depth_initialised_run_tracks_every_frame_accurately(synth_small):
+    cfg = lite_vo.load_profile("phone", ['system.init="depth"'])
+    res = run_sequence(synth_small, cfg)
+    seq = lite_vo.open_sequence(synth_small)
+    assert res.status == "ok"
+    assert res.info["frames"]["tracked"] == len(seq)
+    ev = evaluate(seq.groundtruth, _traj(res), align="se3").to_dict()
+    # metric run: drift below 5% of the path length
+    assert ev["ate_pct_of_path"] < 5.0, ev
+
+
+def test_gt_poses_random_init_converges_depth(synth_small):
+    cfg = lite_vo.load_profile("phone", ['system.init="random"'])
+    res = run_sequence(synth_small, cfg, pose_source="gt")
+    acc = res.info["depth_accuracy"]
+    assert acc is not None and acc["frames"] > 0
+    assert acc["median_abs_rel_error"] < 0.05, acc
+    assert acc["density"] > 0.10, acc
+
+
+def test_depth_images_mode_tracks_without_mapping(synth_small):
+    cfg = lite_vo.load_profile("phone")
+    res = run_sequence(synth_small, cfg, depth_source="images", max_frames=20)
+    assert res.info["frames"]["tracked"] == 20
+    assert res.timing["mapping"]["count"] == 0
+    seq = lite_vo.open_sequence(synth_small)
+    ev = evaluate(seq.groundtruth, _traj(res), align="se3").to_dict()
+    assert ev["ate_rmse_m"] < 0.02, ev
+
+
+def test_realtime_mode_uses_a_mapping_thread_and_tracks(synth_small):
+    sync_cfg = lite_vo.load_profile("phone", ['system.init="depth"'])
+    rt_cfg = lite_vo.load_profile("phone", ['system.init="depth"', 'system.mode="realtime"',
+                                            "system.realtime_speed=0.5"])
+    seq = lite_vo.open_sequence(synth_small)
+    sync = evaluate(seq.groundtruth, _traj(run_sequence(synth_small, sync_cfg)), align="se3").to_dict()
+    rt_res = run_sequence(synth_small, rt_cfg)
+    counts = rt_res.info["frames"]
+    assert counts["tracked"] >= 0.9 * counts["in"]
+    assert rt_res.timing["mapping"]["count"] >= 2  # the mapping thread ran
+    rt = evaluate(seq.groundtruth, _traj(rt_res), align="se3").to_dict()
+    assert rt["ate_rmse_m"] < max(3 * sync["ate_rmse_m"], 0.01), (rt, sync)
+
+
+class _Recorder(OutputSink):
+    def __init__(self):
+        self.frames, self.maps, self.finished = [], [], 0
+
+    def on_frame(self, result, image):
+        self.frames.append((result.index, result.lost, image.shape))
+
+    def on_map(self, frame_id, timestamp, T_world_cam, idepth, idepth_var, intrinsics):
+        self.maps.append((frame_id, idepth.shape, int(np.isfinite(idepth).sum())))
+
+    def on_finish(self):
+        self.finished += 1
+
+
+def test_loss_is_reported_as_a_gap_and_tracking_recovers(synth_small):
+    seq, frames = _frames(synth_small, 36)
+    cfg = lite_vo.load_profile("phone", ['system.init="depth"'])
+    rec = _Recorder()
+    rng = np.random.default_rng(0)
+    results = []
+    with VisualOdometry(seq.camera, cfg, sinks=[rec]) as vo:
+        for fr in frames:
+            img = fr.image
+            if 20 <= fr.index < 24:  # the camera is covered: noise
+                img = rng.integers(0, 255, size=img.shape, dtype=np.uint8)
+            results.append(vo.process(img, fr.timestamp, depth=fr.depth))
+    lost = [r.index for r in results if r.lost]
+    assert set(lost) == {20, 21, 22, 23}
+    assert all(r.T_world_cam is None for r in results if r.lost)
+    after = [r for r in results if r.index >= 24]
+    assert not any(r.lost for r in after)
+    assert after[0].event == "recovered"
+    # the recovered poses are still right
+    gt = seq.groundtruth.poses
+    T0 = np.linalg.inv(gt[0])
+    err = np.linalg.norm((T0 @ gt[35])[:3, 3] - results[35].T_world_cam[:3, 3])
+    assert err < 0.03
+    assert len(rec.frames) == 36 and rec.finished == 1
+    assert rec.maps and rec.maps[0][1] == (vo.map_intrinsics.height, vo.map_intrinsics.width)
+
+
+def test_long_loss_reinitialises_the_map(synth_small):
+    seq, frames = _frames(synth_small, 30)
+    cfg = lite_vo.load_profile("phone", ['system.init="depth"', "system.max_lost_frames=3"])
+    rng = np.random.default_rng(1)
+    with VisualOdometry(seq.camera, cfg) as vo:
+        events = []
+        for fr in frames:
+            img = fr.image if not 10 <= fr.index < 16 else rng.integers(0, 255, size=fr.image.shape, dtype=np.uint8)
+            events.append(vo.process(img, fr.timestamp, depth=fr.depth).event)
+    assert "reinit" in events
+    assert vo.counts["reinit"] >= 1
+
+
+def test_bad_input_is_a_clear_error(synth_small):
+    seq, frames = _frames(synth_small, 3)
+    cfg = lite_vo.load_profile("phone")
+    vo = VisualOdometry(seq.camera, cfg)
+    vo.process(frames[0].image, 1.0)
+    with pytest.raises(InputError, match="timestamps must increase"):
+        vo.process(frames[1].image, 1.0)
+    with pytest.raises(InputError, match="320x240|size|calibration"):
+        vo.process(np.zeros((100, 100), np.uint8), 2.0)
+    with pytest.raises(InputError, match="not finite"):
+        vo.process(frames[1].image, float("nan"))
+    vo.close()
+    given = VisualOdometry(seq.camera, cfg, pose_source="given")
+    with pytest.raises(InputError, match="NaN"):
+        given.process(frames[0].image, 1.0, T_world_cam=np.full((4, 4), np.nan))
+    given.close()
