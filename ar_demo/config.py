@@ -25,6 +25,7 @@ class ARConfig:
     ground_band_rel: float = param(0.004, "height band of the supporting samples, relative to the median scene depth", 1e-5, 0.5)
     ground_max_dist_rel: float = param(2.0, "use map points closer to the camera than this times their median distance", 0.1, 1e6)
     ground_max_points: int = param(20000, "map points used for the ground plane (random subset beyond this)", 100, 10**7)
+    ground_refine_max_deg: float = param(5.0, "refine the IMU normal by the dominant map plane within this angle (0: IMU only)", 0.0, 45.0)
     ransac_iterations: int = param(300, "fallback without IMU: RANSAC plane hypotheses", 1, 100000)
     ransac_max_angle_deg: float = param(40.0, "fallback: largest angle between a plane normal and the first camera's up", 1.0, 90.0)
     ransac_inlier_rel: float = param(0.01, "fallback: RANSAC inlier distance relative to the median scene depth", 1e-5, 0.5)

@@ -7,6 +7,11 @@
 * The **height** is the lowest height supported by at least ``min_support`` depth-map samples
   within a band, and then the highest of those supporting samples, so small bumps are covered by a
   smooth surface to drive on.
+* **Refinement** (our addition, ``ground_refine_max_deg``): a short low-pass of a hand-held
+  accelerometer is biased by the motion (~1 deg, i.e. several cm of height error a few metres
+  away), so the normal is replaced by that of the dominant map plane (RANSAC + least squares)
+  within a few degrees of the IMU direction when there is one. Any plane parallel to the floor
+  (e.g. a table top) gives the right normal; the height rule then still picks the floor.
 * **Fallback without an IMU** (documented choice): RANSAC over the map points for the dominant
   plane whose normal lies within ``ransac_max_angle_deg`` of the first camera's up direction
   (``-y`` of the first camera; handheld sequences start roughly upright), refined by a least-squares
@@ -223,7 +228,14 @@ def estimate_ground_plane(points_world: np.ndarray, cfg, up_world: np.ndarray | 
     support = min(cfg.ground_min_support, len(P))
     band = cfg.ground_band_rel * scene_depth
     if up_world is not None:
-        return ground_from_up(P, up_world, support, band, "imu")
+        n = np.asarray(up_world, dtype=np.float64)
+        source = "imu"
+        if cfg.ground_refine_max_deg > 0:
+            refined = ransac_ground(P, n, cfg.ransac_iterations, cfg.ransac_inlier_rel * scene_depth,
+                                    cfg.ground_refine_max_deg, rng)
+            if refined is not None:
+                n, source = refined, "imu+map"
+        return ground_from_up(P, n, support, band, source)
     if T_world_cam0 is None:
         raise InputError("ground plane: need either an accelerometer or the first camera pose")
     up_hint = -np.asarray(T_world_cam0, dtype=np.float64)[:3, 1]
