@@ -194,7 +194,8 @@ class ARSink(_SinkBase):
             from .video import VideoWriter
             self.writer = VideoWriter(self.out_video, self.fps, (frame.shape[1], frame.shape[0]))
         self.writer.write(frame)
-        self._images.pop(result.index, None)
+        for k in [k for k in self._images if k <= result.index]:   # also frames the VO dropped
+            del self._images[k]
         self._frames += 1
         self.times["frame"].append((time.perf_counter() - t_frame) * 1e3)
 

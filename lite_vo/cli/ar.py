@@ -27,6 +27,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=int, default=None, help="process at most N frames")
     p.add_argument("--poses", choices=("estimate", "gt"), default="estimate",
                    help="estimate: the visual odometry; gt: ground-truth poses and depth (testing the AR part)")
+    p.add_argument("--mode", choices=("sync", "realtime"), default="sync",
+                   help="VO scheduling: sync (deterministic, default) or realtime (two threads, may drop frames)")
     p.add_argument("--panels", action="store_true",
                    help="add side panels: semi-dense depth map and collision mesh from another viewpoint")
     p.add_argument("--mesh", type=Path, default=None, help="also export the last collision mesh (.obj or .ply)")
@@ -79,7 +81,7 @@ def run(args) -> int:
     summary = pipeline.run_ar(args.sequence, out, profile=args.profile, poses=args.poses,
                               max_frames=args.max_frames, cfg=cfg, panels=args.panels or None,
                               overrides=args.overrides, trajectory_out=args.trajectory, mesh_out=args.mesh,
-                              progress=progress_printer(args.quiet))
+                              progress=progress_printer(args.quiet), vo_mode=args.mode)
     t = summary["timing_ms"]
     print(f"{out}: {summary['frames_written']} frames {summary['video_size'][0]}x{summary['video_size'][1]}, "
           f"{summary['frames_with_pose']} with a pose; world model {t['world_model']['median']:.1f} ms, "
