@@ -21,7 +21,7 @@ import numpy as np
 from lite_vo.camera import PinholeIntrinsics
 
 from .ground import GroundPlane
-from .inpaint import InpaintResult, inpaint_map
+from .inpaint import InpaintResult, inpaint, reduce_idepth
 from .mesh import CollisionMesh, grid_mesh
 
 
@@ -34,6 +34,7 @@ class WorldModel:
     inpaint: InpaintResult
     mesh: CollisionMesh
     build_ms: float
+    stage_ms: dict | None = None      # "reduce", "inpaint", "mesh"
 
 
 def build_world_model(idepth: np.ndarray, idepth_var: np.ndarray, intrinsics: PinholeIntrinsics,
@@ -44,11 +45,17 @@ def build_world_model(idepth: np.ndarray, idepth_var: np.ndarray, intrinsics: Pi
     t0 = time.perf_counter()
     gi = intrinsics.scaled(cfg.grid_width, cfg.grid_height)
     prior = ground.idepth_grid(T_world_cam, gi)
-    res = inpaint_map(idepth, idepth_var, prior, cfg)
+    D, V, _ = reduce_idepth(idepth, idepth_var, prior.shape)
+    t1 = time.perf_counter()
+    res = inpaint(D, V, prior, cfg.alpha, cfg.huber_delta, cfg.ground_var, cfg.min_var,
+                  cfg.solver_iterations, cfg.solver_tol)
+    t2 = time.perf_counter()
     floor = cfg.mesh_idepth_floor_rel * res.scale
     mesh = grid_mesh(res.idepth, gi, T_world_cam, cfg.max_depth_ratio, floor, frame_id, timestamp)
+    t3 = time.perf_counter()
+    stages = {"reduce": (t1 - t0) * 1e3, "inpaint": (t2 - t1) * 1e3, "mesh": (t3 - t2) * 1e3}
     return WorldModel(frame_id, timestamp, np.array(T_world_cam, dtype=np.float64), gi, res, mesh,
-                      (time.perf_counter() - t0) * 1000.0)
+                      (t3 - t0) * 1000.0, stages)
 
 
 class AsyncWorldModelBuilder:
