@@ -43,6 +43,7 @@ def main(argv=None) -> int:
     ap.add_argument("--sequence", type=Path, default=None)
     ap.add_argument("--frames", type=int, default=90)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "ar.md")
+    ap.add_argument("--json", type=Path, default=None, help="also write the raw numbers as JSON")
     args = ap.parse_args(argv)
 
     from ar_demo import _kernels
@@ -123,8 +124,8 @@ def main(argv=None) -> int:
     lines.append("")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines))
-    args.out.with_suffix(".json").write_text(json.dumps({"runs": runs, "world_model_isolated": iso}, indent=2,
-                                                        default=float))
+    if args.json is not None:
+        args.json.write_text(json.dumps({"runs": runs, "world_model_isolated": iso}, indent=2, default=float))
     print("\n".join(lines))
     return 0
 
