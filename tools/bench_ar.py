@@ -1,5 +1,5 @@
 """Benchmark of the AR demo: per-frame cost of the world-model update, the simulation and the
-rendering (median / mean / p95 in ms), written to ``benchmarks/ar.md`` (and ``.json``).
+rendering (median / mean / p95 in ms), written to ``benchmarks/ar.md`` (and ``--json FILE``).
 
 Usage::
 
