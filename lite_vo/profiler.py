@@ -702,7 +702,8 @@ def aggregate(records: Sequence[dict], profiles: Sequence[str], seq_names: Seque
                                     "crashed": sum(r["status"] == "crash" for r in runs),
                                     "reasons": sorted({r["reason"] for r in runs if r["status"] != "ok"})}
             for k in ACCURACY_KEYS:
-                vals = [float(r["eval"][k]) for r in good if r["eval"].get(k) is not None]
+                vals = [float(r["eval"][k]) for r in good if isinstance(r["eval"].get(k), (int, float))
+                        and math.isfinite(r["eval"][k])]
                 cell[k] = _mean_std(vals)
             accuracy[s][p] = cell
 

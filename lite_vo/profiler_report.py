@@ -38,8 +38,10 @@ def _cell(cell: dict | None, key: str, digits: int = 2) -> str:
     if not cell or cell.get("runs", 0) == 0:
         return "-"
     v = cell.get(key)
-    if cell.get("ok", 0) == 0 or v is None:
+    if cell.get("ok", 0) == 0:
         return "crash" if cell.get("crashed") == cell.get("runs") else "fail"
+    if v is None:
+        return "n/a"  # e.g. a run shorter than the RPE interval
     text = _num(v["mean"], digits)
     if v.get("n", 1) > 1:
         text += f" ± {_num(v['std'], digits)}"
@@ -170,7 +172,8 @@ def runs_lines(report: dict) -> list[str]:
         ev = r.get("eval") or {}
         rows.append([r["key"], r["status"], frames, _num(ev.get("rpe_trans_cm_per_s"), 2),
                      _num(ev.get("rpe_rot_deg_per_s"), 2), _num(ev.get("ate_rmse_m"), 3),
-                     _num(r.get("wall_s"), 1), r.get("align") or "-", r.get("reason") or ""])
+                     _num(r.get("wall_s"), 1), r.get("align") or "-",
+                     r.get("reason") or "; ".join(map(str, ev.get("warnings") or []))])
     return _table(["run (sequence/profile/repetition)", "status", "frames in/tracked/lost/dropped",
                    "cm/s", "deg/s", "ATE (m)", "wall (s)", "align", "reason"], rows)
 
@@ -246,7 +249,8 @@ def render_markdown(report: dict, plots: list[str], plot_note: str = "") -> str:
         lines += ["## Accuracy (thesis Table 5.1)", "",
                   "Drift per second: RMSE of the relative pose error over 1-second pairs, translation in cm/s "
                   "and rotation in deg/s, after SE(3) alignment for depth-initialised (metric) runs and Sim(3) "
-                  "alignment otherwise. Mean ± std over repetitions; `fail` when tracking was lost (any lost "
+                  "alignment otherwise. Mean ± std over repetitions; `n/a` when the runs were too short for the "
+                  "1-second pairs; `fail` when tracking was lost (any lost "
                   "frame, unless `--max-lost-ratio` allows some) or the run did not end with status ok; "
                   "`crash` when the run process failed. Resolutions are image widths (heights follow the "
                   "camera's aspect ratio).", ""]

@@ -536,3 +536,14 @@ def test_cli_passes_its_options_to_the_profiler(tmp_path, monkeypatch, capsys):
     assert main(["profile", str(seq), "--workers", "0"]) == 1
     assert main(["profile", str(seq), "--profiles", "phone,nosuch"]) == 1
     assert "nosuch" in capsys.readouterr().err
+
+
+def test_accuracy_cells():
+    ok = {"runs": 2, "ok": 2, "failed": 0, "crashed": 0, "x": {"mean": 0.625, "std": 0.05, "n": 2}, "y": None}
+    assert R._cell(ok, "x") == "0.62 ± 0.05" or R._cell(ok, "x") == "0.63 ± 0.05"
+    assert R._cell(ok, "y") == "n/a"  # evaluated, but e.g. shorter than the 1-s RPE interval
+    part = dict(ok, ok=1, failed=1, x={"mean": 1.0, "std": 0.0, "n": 1})
+    assert R._cell(part, "x") == "1.00 (1/2 fail)"
+    assert R._cell({"runs": 1, "ok": 0, "failed": 1, "crashed": 0}, "x") == "fail"
+    assert R._cell({"runs": 1, "ok": 0, "failed": 1, "crashed": 1}, "x") == "crash"
+    assert R._cell({"runs": 0}, "x") == "-"
