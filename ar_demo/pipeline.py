@@ -134,6 +134,7 @@ class ARSink(_SinkBase):
         self._prev_ts = None
         self._frames = 0
         self._submitted_seq = -1
+        self._pending_sync = None                # world model built synchronously (async_world=false)
         self.writer = None
         self.times = {"world_model": [], "simulation": [], "render": [], "frame": []}
         self.events: list[str] = []
@@ -287,8 +288,7 @@ class ARSink(_SinkBase):
         if self.builder is not None:
             model = self.builder.poll()
         else:
-            model = getattr(self, "_pending_sync", None)
-            self._pending_sync = None
+            model, self._pending_sync = self._pending_sync, None
         if model is not None:
             self.times["world_model"].append(model.build_ms)
             self.physics.set_world_mesh(model.mesh.vertices_world, model.mesh.faces)

@@ -79,7 +79,7 @@ def test_semi_dense_from_depth_keeps_gradient_pixels():
 @pytest.mark.parametrize("panels", [False, True])
 def test_run_ar_gt_video_frames_and_size(egl, sequence, tmp_path, panels):
     out = tmp_path / "ar.mp4"
-    summary = run_ar(sequence, out, poses="gt", max_frames=10, cfg=_cfg(panels=panels),
+    summary = run_ar(sequence, out, poses="gt", max_frames=10, cfg=_cfg(panels=panels, async_world=not panels),
                      trajectory_out=tmp_path / "traj.txt", mesh_out=tmp_path / "mesh.obj")
     n, w, h = read_video_info(out)
     assert n == 10 and summary["frames_written"] == 10
