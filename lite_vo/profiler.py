@@ -734,7 +734,7 @@ def aggregate(records: Sequence[dict], profiles: Sequence[str], seq_names: Seque
 
 def plan_init_study(sequence: str, seq_name: str, n: int, length_s: float, out_dir: Path,
                     profile: str = "phone", pin_core: bool = False,
-                    timestamps: np.ndarray | None = None) -> list[RunSpec]:
+                    timestamps: np.ndarray | None = None, overrides: tuple[str, ...] = ()) -> list[RunSpec]:
     """``n`` random-init sub-sequences of ``length_s`` seconds from evenly spaced start frames.
 
     Sub-sequence i starts at frame ``s_i`` (evenly spread over the frames that leave
@@ -756,7 +756,7 @@ def plan_init_study(sequence: str, seq_name: str, n: int, length_s: float, out_d
         specs.append(RunSpec(sequence=sequence, seq_name=seq_name, profile=profile, rep=i,
                              out_dir=out_dir / seq_name / f"{i:03d}", init="random",
                              max_frames=max(m, 2), start_frame=s, seed=i + 1, pin_core=pin_core,
-                             kind="init"))
+                             kind="init", overrides=tuple(overrides)))
     return specs
 
 
@@ -954,6 +954,7 @@ class ProfileSettings:
     startup: bool = True
     plots: bool = True
     delta_s: float = 1.0
+    overrides: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -1055,7 +1056,7 @@ def run_profile(settings: ProfileSettings, runner: Runner | None = None, evaluat
         specs = []
         for name, seq in zip(seq_names, s.sequences):
             specs += plan_init_study(seq, name, s.init_study, s.init_study_len, out / "init_study",
-                                     profile=prof, pin_core=s.pin_core)
+                                     profile=prof, pin_core=s.pin_core, overrides=tuple(s.overrides))
         log(f"initialisation study: {len(specs)} runs on {s.workers or default_workers()} worker(s)")
         outcomes = execute(specs, runner, s.workers, s.pin_core, progress)
         records = []
@@ -1070,7 +1071,7 @@ def run_profile(settings: ProfileSettings, runner: Runner | None = None, evaluat
     else:
         specs = [RunSpec(sequence=seq, seq_name=name, profile=p, rep=k,
                          out_dir=out / "runs" / name / profile_label(p) / str(k), init=s.init,
-                         max_frames=s.max_frames, pin_core=s.pin_core)
+                         max_frames=s.max_frames, pin_core=s.pin_core, overrides=tuple(s.overrides))
                  for k in range(s.repeat) for name, seq in zip(seq_names, s.sequences) for p in s.profiles]
         log(f"{len(specs)} runs ({len(s.sequences)} sequence(s) x {len(s.profiles)} profile(s) x "
             f"{s.repeat}) on {s.workers or default_workers()} worker(s)"

@@ -236,6 +236,8 @@ def render_markdown(report: dict, plots: list[str], plot_note: str = "") -> str:
     opts = [f"repeat {s.get('repeat')}", f"{s.get('workers') or report.get('workers') or 'default'} worker(s)",
             "pinned to one core + 1 numba thread per run" if s.get("pin_core") else "not pinned",
             f"max frames {s.get('max_frames') or 'all'}", f"init {s.get('init') or 'profile default'}"]
+    if s.get("overrides"):
+        opts.append("overrides " + " ".join(f"`{o}`" for o in s["overrides"]))
     lines += ["Settings: " + ", ".join(opts) + ". Runs use `lite-vo run --mode sync`.", ""]
     w = report.get("warmup")
     if w:

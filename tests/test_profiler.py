@@ -232,6 +232,8 @@ def test_random_init_runs_use_sim3_and_recover_scale(tmp_path):
     assert ev.aligns == ["sim3"]
     assert report["accuracy"]["seqA"]["phone"]["scale"]["mean"] == pytest.approx(4.0, rel=1e-3)
     assert "--init" in P.build_run_command(report_spec(report, tmp_path))
+    spec = P.RunSpec("s", "s", "phone", 0, tmp_path / "x", overrides=("tracking.huber=2",))
+    assert "--set tracking.huber=2" in " ".join(P.build_run_command(spec))
 
 
 def report_spec(report, tmp_path) -> P.RunSpec:
@@ -526,11 +528,15 @@ def test_cli_passes_its_options_to_the_profiler(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(P, "run_profile", fake_run_profile)
     seq = make_sequence(tmp_path / "d")
     rc = main(["profile", str(seq), "--profiles", "phone,board", "--repeat", "2", "--workers", "1", "--pin-core",
-               "--max-frames", "40", "--init", "depth", "--out", str(tmp_path / "o"), "--no-startup", "--force"])
+               "--max-frames", "40", "--init", "depth", "--out", str(tmp_path / "o"), "--no-startup", "--force",
+               "--set", "tracking.huber=2", "--set", "system.map_every=2"])
     s = seen["s"]
     assert rc == 0 and "1 ok" in capsys.readouterr().out
     assert (s.profiles, s.repeat, s.workers, s.pin_core, s.max_frames, s.init, s.force, s.startup) == \
         (["phone", "board"], 2, 1, True, 40, "depth", True, False)
+    assert s.overrides == ["tracking.huber=2", "system.map_every=2"]
+    assert main(["profile", str(seq), "--set", "tracking.hubr=2"]) == 1
+    assert "tracking.hubr" in capsys.readouterr().err
     assert main(["profile", str(seq), "--init-study", "3", "--out", str(tmp_path / "o2")]) == 0
     assert seen["s"].init_study == 3 and seen["s"].profiles == ["phone"]  # the paper's study used phone
     assert main(["profile", str(seq), "--workers", "0"]) == 1

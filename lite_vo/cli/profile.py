@@ -32,7 +32,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("sequences", nargs="+", metavar="SEQUENCE", help="sequence folders or files (with ground truth)")
     p.add_argument("--profiles", default=",".join(PAPER_PROFILES),
                    help="comma-separated profile names or .toml paths (default: the paper's six: %(default)s)")
-    p.add_argument("--repeat", type=int, default=1, metavar="N", help="runs per sequence and profile (default 1)")
+    p.add_argument("--repeat", type=int, default=1, metavar="N",
+                   help="runs per sequence and profile (default 1); sync runs are deterministic, so repeats "
+                        "only measure the spread of the timings")
     p.add_argument("--out", default="lite_vo_out/profile", metavar="DIR",
                    help="output folder (default: %(default)s); never overwritten without --force")
     p.add_argument("--workers", type=int, default=None, metavar="N",
@@ -43,6 +45,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--init", choices=("auto", "depth", "random"), default=None,
                    help="map initialisation passed to lite-vo run (default: the profile's, i.e. auto: "
                         "the first depth image when the sequence has one, as in the paper's Table 5.1)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a value in every profile of the sweep, e.g. --set tracking.constant_velocity=true "
+                        "(repeatable)")
     p.add_argument("--max-lost-ratio", type=float, default=0.0, metavar="R",
                    help="a run counts as failed when more than this share of its frames was lost (default 0)")
     p.add_argument("--init-study", type=int, default=0, metavar="N",
@@ -73,6 +78,9 @@ def run(args) -> int:
         raise InputError("--init-study-len must be positive")
     if not 0.0 <= args.max_lost_ratio <= 1.0:
         raise InputError("--max-lost-ratio must be in [0, 1]")
+    from ..config import load_profile
+    for name in [p for p in args.profiles.split(",") if p.strip()]:
+        load_profile(name.strip(), args.overrides)  # a bad --set fails here, not in every run
     profiles_text = args.profiles
     if args.init_study and profiles_text == ",".join(PAPER_PROFILES):
         profiles_text = "phone"  # the paper's initialisation study used the phone resolutions
@@ -81,7 +89,7 @@ def run(args) -> int:
         out=Path(args.out), workers=args.workers, pin_core=args.pin_core, max_frames=args.max_frames,
         init=args.init, force=args.force, init_study=args.init_study, init_study_len=args.init_study_len,
         max_lost_ratio=args.max_lost_ratio, warmup=not args.no_warmup, startup=not args.no_startup,
-        plots=not args.no_plots)
+        plots=not args.no_plots, overrides=list(args.overrides))
 
     def log(msg: str) -> None:
         if not args.quiet or msg.startswith("warning"):
