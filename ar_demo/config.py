@@ -51,6 +51,7 @@ class ARConfig:
     world_update_every: int = param(5, "rebuild the world model every k-th frame (asynchronously, Fig. 5.7)", 1, 1000)
     async_world: bool = param(True, "build world models in a worker thread (false: synchronous, deterministic)")
     start_after_s: float = param(0.5, "start the AR world this long after the first map (lets a random initialisation converge)", 0.0, 1000.0)
+    start_after_monocular_s: float = param(2.0, "as start_after_s when the VO map is not metric (random initialisation)", 0.0, 1000.0)
     spawn_height: float = param(0.15, "drop the car from this height above the ground (car lengths)", 0.0, 10.0)
     # --- autopilot
     drive_speed: float = param(12.0, "target wheel speed when driving (rad/s)", 0.0, 200.0)

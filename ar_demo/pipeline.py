@@ -173,7 +173,8 @@ class ARSink(_SinkBase):
         if self.physics is None and T is not None and the_map is not None:
             if self._first_map_ts is None:
                 self._first_map_ts = ts
-            if ts - self._first_map_ts >= self.cfg.start_after_s:
+            wait = self.cfg.start_after_s if self.metric else max(self.cfg.start_after_s, self.cfg.start_after_monocular_s)
+            if ts - self._first_map_ts >= wait:
                 self._start_world(the_map)
         dt = 0.0 if self._prev_ts is None else max(0.0, ts - self._prev_ts)
         self._prev_ts = ts

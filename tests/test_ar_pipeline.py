@@ -129,3 +129,9 @@ def test_cli_modules_import_no_ar_packages():
             "print(','.join(bad)); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, f"imported at module level: {r.stdout} {r.stderr}"
+
+
+def test_cli_ar_without_the_extra_says_how_to_install(monkeypatch, tmp_path, capsys):
+    monkeypatch.setitem(sys.modules, "pybullet", None)        # import pybullet -> ImportError
+    assert main(["ar", str(tmp_path), "--out", str(tmp_path / "v.mp4")]) == 1
+    assert "pip install 'lite-vo[ar]'" in capsys.readouterr().err
