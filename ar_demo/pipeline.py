@@ -120,7 +120,9 @@ class ARSink(_SinkBase):
         self._map: tuple | None = None           # newest (frame_id, ts, T_world_cam, idepth, var, intr); under _map_lock
         self._map_seq = 0
         # owned by the on_frame thread
-        self.renderer = renderer or ARRenderer()
+        self.renderer = renderer or ARRenderer(ambient=cfg.render_ambient,
+                                               occluder_offset=(1.0 if cfg.occluder_offset > 0 else 0.0,
+                                                                cfg.occluder_offset))
         self.car_parts = load_racecar_parts()
         self.gravity = GravityFilter(cfg.acc_lowpass_tau_s)
         self._last_acc_t = -np.inf

@@ -157,11 +157,12 @@ void main() { f_color = vec4(texture(tex, v_uv).rgb, 1.0); }
 class ARRenderer:
     """Renders camera image + occluding world mesh + lit objects into RGB uint8 images."""
 
-    def __init__(self, ctx=None, ambient: float = 0.35):
+    def __init__(self, ctx=None, ambient: float = 0.35, occluder_offset: tuple = (1.0, 4.0)):
         import moderngl
         self._mgl = moderngl
         self.ctx = ctx if ctx is not None else create_context()
         self.ambient = float(ambient)
+        self.occluder_offset = tuple(occluder_offset)    # glPolygonOffset (factor, units) of the occluder
         self.prog_lit = self.ctx.program(vertex_shader=_VS_LIT, fragment_shader=_FS_LIT)
         self.prog_plain = self.ctx.program(vertex_shader=_VS_PLAIN, fragment_shader=_FS_PLAIN)
         self.prog_bg = self.ctx.program(vertex_shader=_VS_BG, fragment_shader=_FS_BG)
@@ -248,9 +249,12 @@ class ARRenderer:
             self.prog_plain["mvp"].write(VP.T.astype("f4").tobytes())
             self.prog_plain["color"].value = (0.0, 0.0, 0.0)
             # depth only: blending with (ZERO, ONE) keeps the colour already in the framebuffer
+            # and a small depth offset (away from the camera), so wheels touching the mesh do not flicker
             ctx.enable(mgl.BLEND)
             ctx.blend_func = mgl.ZERO, mgl.ONE
+            ctx.polygon_offset = self.occluder_offset
             vao_p.render(mgl.TRIANGLES)
+            ctx.polygon_offset = 0.0, 0.0
             ctx.disable(mgl.BLEND)
         self.prog_lit["light_dir"].value = tuple(light)
         self.prog_lit["ambient"].value = self.ambient
