@@ -60,6 +60,12 @@ class ARConfig:
     blocked_speed: float = param(0.08, "the car counts as blocked below this speed (car lengths/s) while driving", 0.0, 100.0)
     blocked_time_s: float = param(0.6, "reverse after being blocked this long (s)", 0.01, 100.0)
     reverse_time_s: float = param(1.0, "reverse for this long (s)", 0.01, 100.0)
+    wander_amplitude: float = param(0.5, "steering wander amplitude as a fraction of max_steer", 0.0, 1.0)
+    steer_gain: float = param(1.5, "steering angle per radian of heading error towards the view target", 0.0, 100.0)
+    target_radius: float = param(1.5, "no target steering within this distance of the view target (car lengths)", 0.0, 100.0)
+    blocked_grace_s: float = param(0.5, "ignore low speed this long after a drive/reverse switch (s)", 0.0, 100.0)
+    spawn_v_rel: float = param(0.25, "spawn the car on the ground seen this far below the image centre (image heights)", -0.5, 0.5)
+    target_v_rel: float = param(0.15, "the autopilot aims at the ground seen this far below the image centre", -0.5, 0.5)
     wander_period_s: float = param(4.0, "period of the gentle steering wander (s)", 0.1, 1000.0)
     # --- rendering / video
     video_fps: float = param(0.0, "video frame rate (0: from the sequence timestamps)", 0.0, 240.0)

@@ -128,15 +128,15 @@ class Autopilot:
         c = self.cfg
         self.t += dt
         self.t_mode += dt
-        wander = 0.5 * c.max_steer * math.sin(2 * math.pi * self.t / c.wander_period_s)
+        wander = c.wander_amplitude * c.max_steer * math.sin(2 * math.pi * self.t / c.wander_period_s)
         if self.mode == "drive":
             steer = wander
             if target_xy is not None:
                 d = np.asarray(target_xy, dtype=np.float64) - np.asarray(pos_xy, dtype=np.float64)
-                if np.hypot(*d) > 1.5 * self.car_length:
+                if np.hypot(*d) > c.target_radius * self.car_length:
                     err = (math.atan2(d[1], d[0]) - heading + math.pi) % (2 * math.pi) - math.pi
-                    steer = float(np.clip(1.5 * err, -c.max_steer, c.max_steer))
-            if self.t_mode > 0.5 and forward_speed < c.blocked_speed * self.car_length:
+                    steer = float(np.clip(c.steer_gain * err, -c.max_steer, c.max_steer))
+            if self.t_mode > c.blocked_grace_s and forward_speed < c.blocked_speed * self.car_length:
                 self.t_blocked += dt
             else:
                 self.t_blocked = 0.0

@@ -266,7 +266,7 @@ class ARSink(_SinkBase):
         return self.physics.frame.to_phys(p_world)[0, :2]
 
     def _spawn_pose(self, T, intr):
-        xy = self._ground_hit(T, intr, intr.cx, intr.cy + 0.25 * intr.height)
+        xy = self._ground_hit(T, intr, intr.cx, intr.cy + self.cfg.spawn_v_rel * intr.height)
         if xy is None:                            # looking above the horizon: two car lengths ahead
             from .physics import racecar_length
             xy = np.array([2.0 * racecar_length(), 0.0])
@@ -275,7 +275,7 @@ class ARSink(_SinkBase):
     def _view_target(self, T: np.ndarray):
         if self.ground is None:
             return None
-        return self._ground_hit(T, self.intr, self.intr.cx, self.intr.cy + 0.15 * self.intr.height)
+        return self._ground_hit(T, self.intr, self.intr.cx, self.intr.cy + self.cfg.target_v_rel * self.intr.height)
 
     def _submit(self, the_map) -> None:
         frame_id, ts, T_map, idepth, var, intr_map = the_map
