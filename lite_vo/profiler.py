@@ -896,6 +896,19 @@ _WARMUP_CODE = ("import json, time; from lite_vo.warmup import warmup; t = time.
                 "'modules': [r.to_dict() for r in res]}))")
 
 
+def compiled_kernels(numba_debug_output: str) -> list[str]:
+    """Kernels numba compiled (and saved to its cache) according to ``NUMBA_DEBUG_CACHE=1`` output."""
+    import re
+    out = []
+    for m in re.finditer(r"data saved to '([^']+)'", numba_debug_output):
+        p = Path(m.group(1))
+        pkg = p.parent.name.split("_")[0] if "_" in p.parent.name else p.parent.name
+        name = re.sub(r"\.py\d+\.\d+\.nbc$", "", p.name)
+        name = re.sub(r"-\d+$", "", name)
+        out.append(f"{pkg}/{name}")
+    return sorted(set(out))
+
+
 def _python_json(code: str, args: Sequence[str], env: dict, timeout: float) -> dict:
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True, text=True,
@@ -903,7 +916,10 @@ def _python_json(code: str, args: Sequence[str], env: dict, timeout: float) -> d
     wall = time.perf_counter() - t0
     for line in reversed(proc.stdout.splitlines()):
         if line.startswith("STARTUP_JSON "):
-            return json.loads(line[len("STARTUP_JSON "):]) | {"process_s": wall, "ok": True}
+            res = json.loads(line[len("STARTUP_JSON "):]) | {"process_s": wall, "ok": True}
+            if env.get("NUMBA_DEBUG_CACHE") == "1":
+                res["compiled"] = compiled_kernels(proc.stdout + proc.stderr)
+            return res
     return {"ok": False, "process_s": wall, "returncode": proc.returncode,
             "error": _last_line(proc.stderr) or f"exit status {proc.returncode}"}
 
@@ -925,7 +941,8 @@ def measure_startup(sequence: str, profile: str = "phone", n_frames: int = 3, ti
         try:
             out["cold"] = _python_json(_PROBE_CODE, args, env_cold, timeout)
             out["warmup"] = _python_json(_WARMUP_CODE, [], env_warm, timeout)
-            out["warm"] = _python_json(_PROBE_CODE, args, env_warm, timeout)
+            # NUMBA_DEBUG_CACHE lists what still had to be compiled although warmup() ran
+            out["warm"] = _python_json(_PROBE_CODE, args, dict(env_warm, NUMBA_DEBUG_CACHE="1"), timeout)
         except subprocess.TimeoutExpired as err:
             out["error"] = f"timed out after {err.timeout:.0f} s"
     return out

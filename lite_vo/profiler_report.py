@@ -155,6 +155,12 @@ def startup_lines(report: dict) -> list[str]:
     lines += ["", "The first frames include compiling (cold) or loading from the cache (warm) every kernel they "
                   "call; a warm frame that is still seconds late means a kernel was called with argument types "
                   "its module's `warmup()` does not cover (e.g. read-only arrays)."]
+    missed = (st.get("warm") or {}).get("compiled")
+    if missed:
+        lines += ["", "Kernels still compiled in the warm process (their `warmup()` calls them with other argument "
+                      "types than the system does): " + ", ".join(f"`{k}`" for k in missed) + "."]
+    elif (st.get("warm") or {}).get("ok") and "compiled" in (st.get("warm") or {}):
+        lines += ["", "No kernel had to be compiled in the warm process."]
     w = st.get("warmup") or {}
     if w.get("ok"):
         lines += ["", f"`lite-vo warmup` itself took {_num(w.get('warmup_s'), 1)} s "

@@ -553,3 +553,12 @@ def test_accuracy_cells():
     assert R._cell({"runs": 1, "ok": 0, "failed": 1, "crashed": 0}, "x") == "fail"
     assert R._cell({"runs": 1, "ok": 0, "failed": 1, "crashed": 1}, "x") == "crash"
     assert R._cell({"runs": 0}, "x") == "-"
+
+
+def test_compiled_kernels_from_numba_debug_output():
+    text = ("[cache] index saved to '/tmp/c/tracking_9eea/_kernels.accumulate-89.py311.nbi'\n"
+            "[cache] data saved to '/tmp/c/tracking_9eea/_kernels.accumulate-89.py311.2.nbc'\n"
+            "[cache] data loaded from '/tmp/c/mapping_12ab/_kernels.observe-10.py311.1.nbc'\n"
+            "[cache] data saved to '/tmp/c/tracking_9eea/_kernels.lm_level-307.py311.2.nbc'\n")
+    assert P.compiled_kernels(text) == ["tracking/_kernels.accumulate", "tracking/_kernels.lm_level"]
+    assert P.compiled_kernels("") == []
