@@ -59,7 +59,7 @@ def test_error_is_a_lite_vo_error_and_cli_prints_one_line(tmp_path, capsys):
     assert issubclass(ConfigError, LiteVOError)
     from lite_vo.cli.main import main
     bad = write(tmp_path / "bad.toml", "[tracking]\nhuberr = 2.0\n")
-    rc = main(["run", str(tmp_path), "--profile", str(bad), "--out", str(tmp_path / "o")])
+    rc = main(["profile", str(tmp_path), "--profiles", str(bad), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err.strip()
     assert rc == 1 and "tracking.huberr" in err and len(err.splitlines()) == 1
 
