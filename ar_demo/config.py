@@ -60,6 +60,7 @@ class ARConfig:
     blocked_speed: float = param(0.08, "the car counts as blocked below this speed (car lengths/s) while driving", 0.0, 100.0)
     blocked_time_s: float = param(0.6, "reverse after being blocked this long (s)", 0.01, 100.0)
     reverse_time_s: float = param(1.0, "reverse for this long (s)", 0.01, 100.0)
+    obstacle_normal_z: float = param(0.5, "a contact whose normal has |z| below this counts as a collision (not ground)", 0.0, 1.0)
     wander_amplitude: float = param(0.5, "steering wander amplitude as a fraction of max_steer", 0.0, 1.0)
     steer_gain: float = param(1.5, "steering angle per radian of heading error towards the view target", 0.0, 100.0)
     target_radius: float = param(1.5, "no target steering within this distance of the view target (car lengths)", 0.0, 100.0)

@@ -174,6 +174,8 @@ class PhysicsWorld:
     autopilot: Autopilot | None = None
     sim_time: float = 0.0
     world_swaps: int = 0
+    collisions: int = 0              # starts of side contacts between the car and the world mesh
+    _in_contact: bool = False
     _pb: object = field(default=None, repr=False)
 
     def __post_init__(self):
@@ -260,6 +262,19 @@ class PhysicsWorld:
         for _ in range(n):
             pb.stepSimulation(physicsClientId=c)
         self.sim_time += n / self.cfg.physics_hz
+        if self.car >= 0 and self.world_body >= 0:
+            side = self.side_contact()
+            if side and not self._in_contact:
+                self.collisions += 1
+            self._in_contact = side
+
+    def side_contact(self) -> bool:
+        """The car touches the world mesh with a steep contact normal (an obstacle, not the ground)."""
+        pb = self._pb
+        for cp in pb.getContactPoints(self.car, self.world_body, physicsClientId=self.client):
+            if abs(cp[7][2]) < self.cfg.obstacle_normal_z:
+                return True
+        return False
 
     def link_poses_phys(self) -> dict[int, np.ndarray]:
         """URDF link frames (-1 = base) of the car in the physics frame."""

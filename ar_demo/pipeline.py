@@ -114,6 +114,7 @@ class ARSink(_SinkBase):
         self.out_video = Path(out_video)
         self.fps = float(cfg.video_fps or fps)
         self.acc = accelerometer
+        self._metric_auto = metric is None and not cfg.metric
         self.metric = cfg.metric if metric is None else bool(metric)
         self.mesh_out = Path(mesh_out) if mesh_out else None
         self._map_lock = threading.Lock()
@@ -166,6 +167,10 @@ class ARSink(_SinkBase):
     def on_frame(self, result, image) -> None:
         t_frame = time.perf_counter()
         ts = float(result.timestamp)
+        if self._metric_auto and getattr(result, "event", "") in ("init", "reinit"):
+            init = (getattr(result, "quality", None) or {}).get("init")
+            if init is not None:                 # the VO says how its map was initialised
+                self.metric = init == "depth"
         if getattr(result, "event", "") == "reinit" and self.physics is not None and not self.metric:
             self._reset_world()                  # a new monocular map has a new scale: start over
         T = None if result.T_world_cam is None or getattr(result, "lost", False) else np.asarray(result.T_world_cam)
@@ -400,6 +405,7 @@ class ARSink(_SinkBase):
             "world_swaps": 0 if self.physics is None else self.physics.world_swaps,
             "car_distance_phys": float(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1).sum()) if len(path) > 1 else 0.0,
             "car_reversals": 0 if ap is None else ap.reversals,
+            "car_collisions": 0 if self.physics is None else self.physics.collisions,
             "timing_ms": {k: stats_ms(v) for k, v in self.times.items()},
             "events": self.events,
         }
@@ -454,8 +460,8 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
     else:
         vo_cfg = lite_vo.load_profile(profile, list(overrides) + [f'system.mode="{vo_mode}"'])
         metric = None
-    sink = ARSink(cfg, intr_full, out_video, fps=fps, accelerometer=seq.accelerometer,
-                  metric=metric if metric is not None else cfg.metric, mesh_out=mesh_out)
+    sink = ARSink(cfg, intr_full, out_video, fps=fps, accelerometer=seq.accelerometer, metric=metric,
+                  mesh_out=mesh_out)
     try:
         if poses == "estimate":
             vo = lite_vo.VisualOdometry(seq.camera, vo_cfg, sinks=[sink])
@@ -465,8 +471,6 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
             sink.push_image(fr.index, rect_full(fr.image))
             if vo is not None:
                 res = vo.process(fr.image, fr.timestamp, depth=fr.depth)
-                if i == 0:
-                    sink.metric = bool(cfg.metric or getattr(vo, "metric", False))
             else:
                 k = gt.nearest(fr.timestamp, max_dt=0.02)
                 T = None if k is None else gt.poses[k]
@@ -508,7 +512,8 @@ def write_summary(summary: dict, out_dir: Path) -> None:
              f"frames with a pose: {summary.get('frames_with_pose')} of {summary.get('frames_in')}",
              f"ground plane: {summary.get('ground_plane')}",
              f"world models built: {summary.get('world_models_built')}, swaps: {summary.get('world_swaps')}",
-             f"car: distance {summary.get('car_distance_phys', 0):.2f} m (physics units), reversals {summary.get('car_reversals')}"]
+             f"car: distance {summary.get('car_distance_phys', 0):.2f} m (physics units), "
+             f"collisions {summary.get('car_collisions')}, reversals {summary.get('car_reversals')}"]
     for k in ("world_model", "simulation", "render", "frame"):
         if k in t:
             s = t[k]

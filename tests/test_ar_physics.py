@@ -91,6 +91,7 @@ def test_car_driven_at_box_stops_or_deflects():
         assert max(xs) > start[0] + 0.3, "the car did not drive"
         passed = front_of_car.max() > box_front + 0.1 and abs(ys[-1] - centre[1]) < 0.3
         assert not passed, f"the car drove through the box (front reached {front_of_car.max():.2f}, box at {box_front:.2f})"
+        assert w.collisions >= 1                          # a side contact with the world mesh was seen
     finally:
         w.close()
 
@@ -131,6 +132,7 @@ def test_world_swap_keeps_car_state():
             w.step(1 / 30, autopilot=False)
         after = w.car_state().T_phys_base
         assert np.abs(after[:3, 3] - before[:3, 3]).max() < 0.01
+        assert w.collisions == 0                          # resting on flat ground is no collision
     finally:
         w.close()
 

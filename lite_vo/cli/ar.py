@@ -85,5 +85,6 @@ def run(args) -> int:
     t = summary["timing_ms"]
     print(f"{out}: {summary['frames_written']} frames {summary['video_size'][0]}x{summary['video_size'][1]}, "
           f"{summary['frames_with_pose']} with a pose; world model {t['world_model']['median']:.1f} ms, "
-          f"simulation {t['simulation']['median']:.1f} ms, rendering {t['render']['median']:.1f} ms (medians)")
+          f"simulation {t['simulation']['median']:.1f} ms, rendering {t['render']['median']:.1f} ms (medians); "
+          f"car: {summary['car_collisions']} collisions, {summary['car_reversals']} reversals")
     return 0
