@@ -117,10 +117,10 @@ class Autopilot:
     car_length: float
     mode: str = "drive"
     t_mode: float = 0.0
-    t_blocked: float = 0.0
     t: float = 0.0
     reversals: int = 0
     last_steer: float = 0.0
+    _history: list = field(default_factory=list)     # (t, x, y) of the last blocked_time_s
 
     def command(self, dt: float, pos_xy, heading: float, forward_speed: float,
                 target_xy=None) -> tuple[float, float]:
@@ -136,12 +136,18 @@ class Autopilot:
                 if np.hypot(*d) > c.target_radius * self.car_length:
                     err = (math.atan2(d[1], d[0]) - heading + math.pi) % (2 * math.pi) - math.pi
                     steer = float(np.clip(c.steer_gain * err, -c.max_steer, c.max_steer))
-            if self.t_mode > c.blocked_grace_s and forward_speed < c.blocked_speed * self.car_length:
-                self.t_blocked += dt
-            else:
-                self.t_blocked = 0.0
-            if self.t_blocked > c.blocked_time_s:
-                self.mode, self.t_mode, self.t_blocked = "reverse", 0.0, 0.0
+            # blocked: hardly any progress over the last blocked_time_s (robust to bumping)
+            self._history.append((self.t, float(pos_xy[0]), float(pos_xy[1])))
+            while self._history and self._history[0][0] < self.t - c.blocked_time_s:
+                self._history.pop(0)
+            t0, x0, y0 = self._history[0]
+            progress = math.hypot(pos_xy[0] - x0, pos_xy[1] - y0)
+            window = self.t - t0
+            blocked = (self.t_mode > c.blocked_grace_s and window >= 0.9 * c.blocked_time_s
+                       and progress < c.blocked_speed * self.car_length * window)
+            if blocked:
+                self.mode, self.t_mode = "reverse", 0.0
+                self._history.clear()
                 self.reversals += 1
                 self.last_steer = -math.copysign(c.max_steer, steer if steer else 1.0)
             else:
@@ -150,6 +156,7 @@ class Autopilot:
         # reverse: back up with the opposite steering, then drive again
         if self.t_mode > c.reverse_time_s:
             self.mode, self.t_mode = "drive", 0.0
+            self._history.clear()
         return -c.drive_speed, self.last_steer
 
 
