@@ -84,7 +84,7 @@ def cast_ray(ox, oy, oz, dx, dy, dz, room_lo, room_hi, box_lo, box_hi, t_min, pu
     return t_best, face
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def sample_level(tex_data, off, w, h, x, y):
     """Bilinear sample at texel coordinates (x, y) (texel centres at integers), clamped to the edge."""
     if x < 0.0:
@@ -98,18 +98,21 @@ def sample_level(tex_data, off, w, h, x, y):
     x0 = int(x)
     y0 = int(y)
     if x0 > w - 2:
-        x0 = max(w - 2, 0)
+        x0 = w - 2 if w > 1 else 0
     if y0 > h - 2:
-        y0 = max(h - 2, 0)
+        y0 = h - 2 if h > 1 else 0
     fx = x - x0
     fy = y - y0
-    x1 = min(x0 + 1, w - 1)
-    y1 = min(y0 + 1, h - 1)
-    v00 = tex_data[off + y0 * w + x0]
-    v01 = tex_data[off + y0 * w + x1]
-    v10 = tex_data[off + y1 * w + x0]
-    v11 = tex_data[off + y1 * w + x1]
-    return ((1.0 - fy) * ((1.0 - fx) * v00 + fx * v01) + fy * ((1.0 - fx) * v10 + fx * v11))
+    i00 = off + y0 * w + x0
+    step_x = 1 if w > 1 else 0
+    step_y = w if h > 1 else 0
+    v00 = tex_data[i00]
+    v01 = tex_data[i00 + step_x]
+    v10 = tex_data[i00 + step_y]
+    v11 = tex_data[i00 + step_y + step_x]
+    top = v00 + fx * (v01 - v00)
+    bot = v10 + fx * (v11 - v10)
+    return top + fy * (bot - top)
 
 
 @njit(cache=True, nogil=True)
@@ -118,7 +121,8 @@ def shade_hit(px, py, pz, dx, dy, dz, face, depth, sample_px, tex_data, tex_meta
     """Trilinear (mip-mapped) texture value of the hit point p on ``face``.
 
     ``sample_px``: size of one sample at unit depth (1 / (f * ss)); the footprint on the surface
-    is ``depth * sample_px / sqrt(|cos|)`` (area-based level of detail).
+    is ``depth * sample_px * |d| / sqrt(|cos|)`` (area-based level of detail), with |cos| clamped
+    to ``min_cos``; ``lod = log2(footprint / texel) + lod_bias`` clamped to the pyramid.
     """
     a = (face % 6) // 2
     if a == 0:
@@ -129,32 +133,33 @@ def shade_hit(px, py, pz, dx, dy, dz, face, depth, sample_px, tex_data, tex_meta
         s_m, t_m, da = px, py, dz
     s_m -= tex_origin[face, 0]
     t_m -= tex_origin[face, 1]
-    norm = math.sqrt(dx * dx + dy * dy + dz * dz)
-    c = abs(da) / norm
+    n2 = dx * dx + dy * dy + dz * dz
+    c = math.sqrt(da * da / n2)
     if c < min_cos:
         c = min_cos
     texel = tex_texel[face]
-    footprint = depth * sample_px * norm / math.sqrt(c)
+    f = depth * sample_px / texel
+    q = f * f * n2 / c  # (footprint / texel)^2
+    lod = 0.5 * math.log2(max(q, 1e-12)) + lod_bias
     nlev = tex_nlev[face]
-    lod = math.log2(max(footprint / texel, 1e-6)) + lod_bias
     if lod < 0.0:
         lod = 0.0
     if lod > nlev - 1.0:
         lod = nlev - 1.0
     l0 = int(lod)
     if l0 > nlev - 2:
-        l0 = max(nlev - 2, 0)
+        l0 = nlev - 2 if nlev > 1 else 0
     frac = lod - l0
-    l1 = min(l0 + 1, nlev - 1)
-    scale0 = 1.0 / (texel * (1 << l0))
+    inv = 1.0 / (texel * (1 << l0))
     v0 = sample_level(tex_data, tex_meta[face, l0, 0], tex_meta[face, l0, 1],
-                      tex_meta[face, l0, 2], s_m * scale0 - 0.5, t_m * scale0 - 0.5)
-    if frac <= 0.0 or l1 == l0:
+                      tex_meta[face, l0, 2], s_m * inv - 0.5, t_m * inv - 0.5)
+    if frac <= 0.0 or l0 + 1 >= nlev:
         return v0
-    scale1 = 1.0 / (texel * (1 << l1))
+    l1 = l0 + 1
+    inv *= 0.5
     v1 = sample_level(tex_data, tex_meta[face, l1, 0], tex_meta[face, l1, 1],
-                      tex_meta[face, l1, 2], s_m * scale1 - 0.5, t_m * scale1 - 0.5)
-    return (1.0 - frac) * v0 + frac * v1
+                      tex_meta[face, l1, 2], s_m * inv - 0.5, t_m * inv - 0.5)
+    return v0 + frac * (v1 - v0)
 
 
 @njit(cache=True, nogil=True)
