@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import sys
-import textwrap
 import threading
 import time
 from pathlib import Path
@@ -20,7 +19,7 @@ from lite_vo import profiler as P
 from lite_vo import profiler_report as R
 from lite_vo.errors import InputError
 from lite_vo.geometry import exp_se3, tum_from_pose
-from lite_vo.warmup import warmup, warmup_module
+from lite_vo.warmup import warmup
 
 FPS = 30.0
 
