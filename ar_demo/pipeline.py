@@ -441,12 +441,18 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
         raise InputError(f"max_frames must be positive, got {max_frames}")
     t_start = time.perf_counter()
     seq = lite_vo.open_sequence(sequence_path)
-    n_total = len(seq)
-    n = n_total if max_frames is None else min(n_total, int(max_frames))
+    try:
+        n_total = len(seq)
+    except TypeError:                           # live camera: until max_frames (or Ctrl-C)
+        n_total = None
+    n = (n_total if max_frames is None else int(max_frames) if n_total is None
+         else min(n_total, int(max_frames)))
+    if n is None:
+        n = float("inf")
     ts_all = getattr(seq, "timestamps", None)
     fps = 30.0
     if ts_all is not None and len(ts_all) > 1:
-        fps = float(1.0 / np.median(np.diff(np.asarray(ts_all)[:max(2, n)])))
+        fps = float(1.0 / np.median(np.diff(np.asarray(ts_all)[:max(2, int(min(n, len(ts_all))))])))
     rect_full = _rectifier_full(seq)
     intr_full = rect_full.intrinsics
     traj_rows: list[tuple[float, np.ndarray]] = []
@@ -497,7 +503,7 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
                 f.write(f"{t:.6f} " + " ".join(f"{x:.9f}" for x in tum_from_pose(T)) + "\n")
     summary = dict(sink.summary)
     summary.update({"sequence": str(sequence_path), "poses": poses, "profile": profile if poses == "estimate" else None,
-                    "frames_in": n, "frames_with_pose": len(traj_rows),
+                    "frames_in": summary.get("frames_written", 0), "frames_with_pose": len(traj_rows),
                     "wall_s": time.perf_counter() - t_start})
     return summary
 

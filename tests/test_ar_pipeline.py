@@ -135,3 +135,36 @@ def test_cli_ar_without_the_extra_says_how_to_install(monkeypatch, tmp_path, cap
     monkeypatch.setitem(sys.modules, "pybullet", None)        # import pybullet -> ImportError
     assert main(["ar", str(tmp_path), "--out", str(tmp_path / "v.mp4")]) == 1
     assert "pip install 'lite-vo[ar]'" in capsys.readouterr().err
+
+
+def test_sink_resets_world_on_monocular_reinit(egl, tmp_path):
+    """ARSink fed by hand (as the VO would): starts the world, and a monocular re-initialisation
+    (new scale) restarts it; a lost frame writes the camera image only."""
+    from types import SimpleNamespace
+
+    from ar_demo.pipeline import ARSink
+    from lite_vo.camera import PinholeIntrinsics
+    from naive_ar import look_at, raycast_depth
+
+    intr = PinholeIntrinsics(120.0, 120.0, 79.5, 59.5, 160, 120)
+    T = look_at([0.0, 0.0, 1.0], [2.0, 0.0, 0.0])
+    depth, _ = raycast_depth(T, intr.K, 160, 120, boxes=[(1.5, -0.3, 0, 1.9, 0.3, 0.3)])
+    idepth = np.where(depth > 0, 1 / np.where(depth > 0, depth, 1), np.nan)
+    var = np.full(idepth.shape, 1e-4)
+    sink = ARSink(_cfg(start_after_monocular_s=0.0, ground_min_support=50), intr, tmp_path / "s.mp4", fps=10)
+    image = np.full((120, 160), 100.0, np.float32)
+    for i in range(6):
+        event = "init" if i == 0 else "reinit" if i == 4 else ""
+        quality = {"init": "random"} if event else {}
+        sink.on_map(i, i * 0.1, T, idepth, var, intr)
+        sink.on_frame(SimpleNamespace(index=i, timestamp=i * 0.1, T_world_cam=T, lost=False, event=event,
+                                      quality=quality), image)
+        if i == 2:
+            assert sink.physics is not None and sink.metric is False
+            assert sink.ground.source == "ransac"                     # no accelerometer given
+    sink.on_frame(SimpleNamespace(index=6, timestamp=0.6, T_world_cam=None, lost=True, event="lost", quality={}),
+                  image)
+    sink.on_finish()
+    assert any("reset" in e for e in sink.summary["events"])
+    assert sum(e.startswith("start") for e in sink.summary["events"]) == 2
+    assert read_video_info(tmp_path / "s.mp4") == (7, 160, 120)
