@@ -33,7 +33,6 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    import shutil
     import sys
     import tempfile
 
