@@ -10,6 +10,9 @@ Owns:
 * :func:`gradients` - half central differences ``gx = (I[x+1] - I[x-1]) / 2`` (0 on the border).
 * :func:`intensity_gradient_stack` - ``(H, W, 3)`` float32 ``[I, gx, gy]`` interleaved, the layout the
   tracking kernel samples bilinearly (one cache line per corner).
+* :func:`bspline_coefficient_stack` - cubic B-spline coefficients (same layout, channel 0), for
+  bicubic-spline sampling in tracking (much less "pixel locking" than bilinear interpolation).
+* :func:`gaussian_blur` - separable Gaussian (mirror borders), the tracking images' anti-aliasing.
 * :func:`warmup` - compiles every kernel of this module on tiny inputs.
 
 Imports numpy and numba only (no other lite_vo module, no OpenCV).
@@ -19,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["image_pyramid", "idepth_pyramid", "gradients", "intensity_gradient_stack",
-           "downsample_image", "downsample_idepth", "warmup"]
+__all__ = ["image_pyramid", "idepth_pyramid", "gradients", "intensity_gradient_stack", "bspline_coefficient_stack",
+           "downsample_image", "downsample_idepth", "gaussian_blur", "gaussian_kernel", "warmup"]
 
 
 # --------------------------------------------------------------------------- kernels
@@ -73,6 +76,81 @@ def _gradient_stack(img, out):
             else:
                 out[y, x, 1] = 0.0
                 out[y, x, 2] = 0.0
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def _bspline_prefilter_line(c, n, horizon):
+    """In-place cubic B-spline prefilter of ``c[:n]`` (mirror boundaries; Unser 1993 / Thevenaz 2000)."""
+    if n < 2:
+        return
+    z = np.sqrt(3.0) - 2.0
+    for k in range(n):
+        c[k] *= 6.0                                   # gain (1 - z)(1 - 1/z)
+    # causal initialisation (mirror): sum_k z^k c[k], truncated where z^k is negligible
+    zn = z
+    s = c[0]
+    m = horizon if horizon < n else n
+    for k in range(1, m):
+        s += zn * c[k]
+        zn *= z
+    c[0] = s
+    for k in range(1, n):
+        c[k] += z * c[k - 1]
+    c[n - 1] = (z / (z * z - 1.0)) * (c[n - 1] + z * c[n - 2])
+    for k in range(n - 2, -1, -1):
+        c[k] = z * (c[k + 1] - c[k])
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def _bspline_coefficients(img, out, horizon):
+    h, w = img.shape
+    row = np.empty(w)
+    for y in range(h):
+        for x in range(w):
+            row[x] = img[y, x]
+        _bspline_prefilter_line(row, w, horizon)
+        for x in range(w):
+            out[y, x, 0] = row[x]
+    col = np.empty(h)
+    for x in range(w):
+        for y in range(h):
+            col[y] = out[y, x, 0]
+        _bspline_prefilter_line(col, h, horizon)
+        for y in range(h):
+            out[y, x, 0] = col[y]
+            out[y, x, 1] = 0.0
+            out[y, x, 2] = 0.0
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def _blur_separable(img, kern, tmp, out):
+    """Separable convolution with the symmetric 1-D kernel ``kern`` (odd length), mirror borders."""
+    h, w = img.shape
+    r = kern.shape[0] // 2
+    for y in range(h):
+        for x in range(w):
+            s = 0.0
+            for k in range(-r, r + 1):
+                xx = x + k
+                if xx < 0:
+                    xx = -xx
+                elif xx >= w:
+                    xx = 2 * w - 2 - xx
+                xx = min(max(xx, 0), w - 1)
+                s += kern[k + r] * img[y, xx]
+            tmp[y, x] = s
+    for y in range(h):
+        for x in range(w):
+            s = 0.0
+            for k in range(-r, r + 1):
+                yy = y + k
+                if yy < 0:
+                    yy = -yy
+                elif yy >= h:
+                    yy = 2 * h - 2 - yy
+                yy = min(max(yy, 0), h - 1)
+                s += kern[k + r] * tmp[yy, x]
+            out[y, x] = s
 
 
 # --------------------------------------------------------------------------- wrappers
@@ -168,9 +246,42 @@ def intensity_gradient_stack(img: np.ndarray, out: np.ndarray | None = None) -> 
     return out
 
 
+def bspline_coefficient_stack(img: np.ndarray, out: np.ndarray | None = None, precision: float = 1e-7) -> np.ndarray:
+    """``(H, W, 3)`` float32 whose channel 0 holds the cubic B-spline coefficients of ``img``
+    (mirror boundaries; interpolating: evaluating the spline at pixel centres gives ``img`` back),
+    channels 1, 2 zero. The layout of :func:`intensity_gradient_stack`, for the tracking kernel's
+    bicubic B-spline mode. ``precision`` sets where the boundary initialisation sum is truncated."""
+    a = _as_image(img)
+    if out is None or out.shape != a.shape + (3,) or out.dtype != np.float32:
+        out = np.empty(a.shape + (3,), np.float32)
+    horizon = int(np.ceil(np.log(precision) / np.log(2.0 - np.sqrt(3.0)))) + 1
+    _bspline_coefficients(a, out, horizon)
+    return out
+
+
+def gaussian_kernel(sigma: float, truncate: float = 2.5) -> np.ndarray:
+    """Normalised 1-D Gaussian of std ``sigma`` px, radius ``ceil(truncate * sigma)`` (at least 1)."""
+    r = max(1, int(np.ceil(truncate * sigma)))
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    k = np.exp(-0.5 * (x / sigma) ** 2)
+    return k / k.sum()
+
+
+def gaussian_blur(img: np.ndarray, sigma: float, truncate: float = 2.5) -> np.ndarray:
+    """Separable Gaussian blur (float32, mirror borders); ``sigma <= 0`` returns a float32 copy."""
+    a = _as_image(img)
+    if not sigma > 0:
+        return a.copy()
+    out = np.empty_like(a)
+    _blur_separable(a, gaussian_kernel(sigma, truncate), np.empty_like(a), out)
+    return out
+
+
 def warmup() -> None:
     """Compile (or load from the cache) every kernel of this module."""
     img = np.arange(16, dtype=np.float32).reshape(4, 4)
     image_pyramid(img, 2)
     idepth_pyramid(np.ones((4, 4), np.float32), np.ones((4, 4), np.float32), np.ones((4, 4), bool), 2)
     intensity_gradient_stack(img)
+    bspline_coefficient_stack(img)
+    gaussian_blur(img, 0.7)

@@ -49,7 +49,22 @@ def gradients(img):
 
 
 # ----------------------------------------------------------------------------- tracking
-def accumulate(pts, img3, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
+def bspline_sample(coef, u, v):
+    """Cubic B-spline value and gradient at (u, v) from a coefficient image (textbook weights)."""
+    x0, y0 = int(np.floor(u)), int(np.floor(v))
+    tx, ty = u - x0, v - y0
+
+    def w(t):
+        return np.array([(1 - t) ** 3, 3 * t ** 3 - 6 * t ** 2 + 4, -3 * t ** 3 + 3 * t ** 2 + 3 * t + 1, t ** 3]) / 6
+
+    def dw(t):
+        return np.array([-3 * (1 - t) ** 2, 9 * t ** 2 - 12 * t, -9 * t ** 2 + 6 * t + 3, 3 * t ** 2]) / 6
+
+    patch = coef[y0 - 1:y0 + 3, x0 - 1:x0 + 3]
+    return w(ty) @ patch @ w(tx), w(ty) @ patch @ dw(tx), dw(ty) @ patch @ w(tx)
+
+
+def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
                good_c2, good_g2, border, min_z):
     """Twin of ``_kernels.accumulate``; returns the accumulator vector (``ACC_*`` layout)."""
     pts = np.asarray(pts, np.float64)
@@ -66,11 +81,14 @@ def accumulate(pts, img3, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, af
     Hm = np.zeros((6, 6))
     g = np.zeros(6)
     for i in np.nonzero(ok)[0]:
-        x0, y0 = int(np.floor(u[i])), int(np.floor(v[i]))
-        ax, ay = u[i] - x0, v[i] - y0
-        patch = img3[y0:y0 + 2, x0:x0 + 2]                   # [[p00, p10], [p01, p11]]
-        wts = np.array([[(1 - ax) * (1 - ay), ax * (1 - ay)], [(1 - ax) * ay, ax * ay]])
-        i_new, gx, gy = (patch * wts[:, :, None]).sum(axis=(0, 1))
+        if interp == K.INTERP_BSPLINE:
+            i_new, gx, gy = bspline_sample(img3[:, :, 0], u[i], v[i])
+        else:
+            x0, y0 = int(np.floor(u[i])), int(np.floor(v[i]))
+            ax, ay = u[i] - x0, v[i] - y0
+            patch = img3[y0:y0 + 2, x0:x0 + 2]                   # [[p00, p10], [p01, p11]]
+            wts = np.array([[(1 - ax) * (1 - ay), ax * (1 - ay)], [(1 - ax) * ay, ax * ay]])
+            i_new, gx, gy = (patch * wts[:, :, None]).sum(axis=(0, 1))
         r = i_new - (aff_a * pts[i, 3] + aff_b)
         if not (np.isfinite(r) and np.isfinite(gx) and np.isfinite(gy)):
             continue

@@ -33,17 +33,18 @@ def _random_points(rng, n, with_edge_cases=True):
     return pts
 
 
-def _kernel_vs_naive(pts, img3, T, args):
+def _kernel_vs_naive(pts, img3, T, args, interp=K.INTERP_BILINEAR):
     acc = np.empty(K.ACC_SIZE)
     buf = np.empty((K.BUF_ROWS, max(len(pts), 1)))
-    K.accumulate(pts, img3, T, *args, buf, acc)
-    ref = naive.accumulate(pts, img3, T, *args)
+    K.accumulate(pts, img3, interp, T, *args, buf, acc)
+    ref = naive.accumulate(pts, img3, interp, T, *args)
     np.testing.assert_allclose(acc, ref, rtol=1e-6, atol=1e-6)
     return acc
 
 
+@pytest.mark.parametrize("interp", [K.INTERP_BILINEAR, K.INTERP_BSPLINE])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_accumulate_matches_naive(seed):
+def test_accumulate_matches_naive(seed, interp):
     rng = np.random.default_rng(seed)
     h, w = 30, 40
     img = rng.uniform(0, 255, (h, w)).astype(np.float32)
@@ -55,7 +56,7 @@ def test_accumulate_matches_naive(seed):
     pts = _random_points(rng, 300)
     T = exp_se3(rng.normal(0, [0.05, 0.05, 0.05, 0.05, 0.05, 0.05]))
     args = (35.0, 36.0, 19.5, 14.5, 16.0, 1.5, 1.1, -3.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
-    acc = _kernel_vs_naive(pts, img3, T, args)
+    acc = _kernel_vs_naive(pts, img3, T, args, interp)
     assert 0 < acc[K.ACC_N] < len(pts) - 2                  # some points skipped, most used
     assert acc[K.ACC_GOOD] + acc[K.ACC_BAD] == acc[K.ACC_N]
 
@@ -97,7 +98,7 @@ def test_accumulate_jacobian_matches_finite_differences():
     args = (intr.fx, intr.fy, intr.cx, intr.cy, 1.0, 1e9, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
     acc = np.empty(K.ACC_SIZE)
     buf = np.empty((K.BUF_ROWS, 1))
-    K.accumulate(pts, img3, T, *args, buf, acc)
+    K.accumulate(pts, img3, K.INTERP_BILINEAR, T, *args, buf, acc)
     H = np.zeros((6, 6))
     g = np.zeros(6)
     K.unpack_normal_equations(acc, H, g)
@@ -155,7 +156,12 @@ def test_reference_build_levels_and_immutability():
     np.testing.assert_allclose(k1.fx * x / z + k1.cx, lv.x, atol=1e-3)
     np.testing.assert_allclose(k1.fy * y / z + k1.cy, lv.y, atol=1e-3)
     np.testing.assert_allclose(1 / z, lv.idepth, rtol=1e-5)
-    np.testing.assert_array_equal(lv.intensity, pyr[1][lv.y.astype(int), lv.x.astype(int)])
+    from lite_vo.image import gaussian_blur
+    assert ref.smooth_sigma == TrackingConfig().smooth_sigma > 0
+    np.testing.assert_allclose(lv.intensity, gaussian_blur(pyr[1], ref.smooth_sigma)[lv.y.astype(int), lv.x.astype(int)],
+                               atol=1e-3)
+    raw = TrackingReference.build(pyr, idepth, var, valid, INTR, frame_id=7, smooth_sigma=0.0)
+    np.testing.assert_array_equal(raw.levels[1].intensity, pyr[1][lv.y.astype(int), lv.x.astype(int)])
     for arr in (lv.x, lv.y, lv.intensity, lv.idepth, lv.idepth_var, lv.points, ref.idepth_pyr[2]):
         assert not arr.flags.writeable and arr.flags.c_contiguous
     with pytest.raises(AttributeError):
@@ -281,3 +287,46 @@ def test_nan_image_and_bad_guess():
     assert res.lost and res.points_used == 0
     with pytest.raises(ValueError):
         Tracker(TrackingConfig(), INTR, LEVELS, TRACK_LEVEL).track(ref, pyr, np.full((4, 4), np.nan))
+
+
+def test_bspline_jacobian_is_the_exact_derivative_of_the_spline():
+    """In B-spline mode the residual is the spline itself: J must match its finite differences closely."""
+    from scipy.ndimage import map_coordinates
+    from lite_vo.image import bspline_coefficient_stack
+    rng = np.random.default_rng(11)
+    img = rng.uniform(0, 255, (40, 50)).astype(np.float32)
+    coef3 = bspline_coefficient_stack(img)
+    intr = PinholeIntrinsics(45.0, 45.0, 24.5, 19.5, 50, 40)
+    pts = np.zeros((1, K.PTS_COLS), np.float32)
+    pts[0, :3] = [0.07, -0.05, 1.2]
+    pts[0, 3] = 100.0
+    T = exp_se3(np.array([0.01, -0.02, 0.01, 0.02, 0.01, -0.01]))
+    args = (intr.fx, intr.fy, intr.cx, intr.cy, 1.0, 1e9, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
+    acc = _kernel_vs_naive(pts, coef3, T, args, K.INTERP_BSPLINE)
+    H, g = np.zeros((6, 6)), np.zeros(6)
+    K.unpack_normal_equations(acc, H, g)
+
+    def spline_residual(Tx):
+        q = Tx[:3, :3] @ pts[0, :3].astype(np.float64) + Tx[:3, 3]
+        u, v = intr.fx * q[0] / q[2] + intr.cx, intr.fy * q[1] / q[2] + intr.cy
+        return map_coordinates(coef3[:, :, 0].astype(np.float64), [[v], [u]], order=3, prefilter=False)[0] - 100.0
+    r0 = spline_residual(T)
+    eps = 1e-6
+    Jn = np.array([(spline_residual(exp_se3(eps * e) @ T) - spline_residual(exp_se3(-eps * e) @ T)) / (2 * eps)
+                   for e in np.eye(6)])
+    np.testing.assert_allclose(g / r0, Jn, rtol=1e-4, atol=1e-4 * np.abs(Jn).max())
+    # the spline interpolates: evaluated at pixel centres it returns the image
+    ys, xs = np.mgrid[2:38, 2:48]
+    back = map_coordinates(coef3[:, :, 0].astype(np.float64), [ys.ravel(), xs.ravel()], order=3, prefilter=False)
+    np.testing.assert_allclose(back, img[2:38, 2:48].ravel(), atol=1e-3)
+
+
+@pytest.mark.parametrize("interpolation", ["bilinear", "bspline"])
+def test_small_motion_both_interpolations(room_pair, interpolation):
+    room, ref = room_pair
+    T_ref_new = exp_se3(np.array([0.01, 0.005, -0.01, 0.005, 0.01, 0.0]))
+    img1, _ = room.render(T_ref_new, INTR, supersample=2)
+    cfg = dataclasses.replace(TrackingConfig(), interpolation=interpolation)
+    res = Tracker(cfg, INTR, LEVELS, TRACK_LEVEL).track(ref, image_pyramid(img1, LEVELS), np.eye(4))
+    t_err, r_err = _pose_error(res.T_ref_new, T_ref_new)
+    assert t_err < 1.5e-3 and r_err < 0.06, (t_err, r_err)

@@ -23,11 +23,20 @@ from pathlib import Path
 import numpy as np
 
 
-def select_points(img: np.ndarray, depth_m: np.ndarray, min_grad: float) -> np.ndarray:
-    """Valid-depth pixels whose 3x3 max-filtered gradient magnitude is >= min_grad."""
+def select_points(img: np.ndarray, depth_m: np.ndarray, min_grad: float, max_depth_step: float = 0.0,
+                  edge_window: int = 5) -> np.ndarray:
+    """Valid-depth pixels whose 3x3 max-filtered gradient magnitude is >= min_grad and, when
+    ``max_depth_step > 0``, whose ``edge_window`` neighbourhood spans less than ``max_depth_step * depth``
+    (drops occlusion boundaries, where one pixel's depth does not describe what the next frame sees)."""
     import cv2
     from lite_vo.image import gradients
     valid = depth_m > 0
+    if max_depth_step > 0:
+        d = np.asarray(depth_m, np.float32)
+        kernel = np.ones((edge_window, edge_window), np.uint8)
+        dmax = cv2.dilate(d, kernel)
+        dmin = cv2.erode(np.where(d > 0, d, np.float32(1e9)).astype(np.float32), kernel)
+        valid &= (dmax - dmin) < max_depth_step * d
     if min_grad > 0:
         gx, gy = gradients(img)
         g = cv2.dilate(np.hypot(gx, gy).astype(np.float32), np.ones((3, 3), np.uint8))
@@ -76,6 +85,9 @@ def run(args) -> dict:
         if fr.depth is None:
             raise SystemExit(f"{args.sequence}: frame {fr.index} has no depth image")
         img = rect(fr.image)
+        if args.pre_blur > 0:
+            import cv2
+            img = cv2.GaussianBlur(img, (0, 0), args.pre_blur)
         if args.depth_is_range:
             ni = seq.camera.intrinsics
             ys, xs = np.mgrid[0:fr.depth.shape[0], 0:fr.depth.shape[1]]
@@ -106,11 +118,11 @@ def run(args) -> dict:
             T_world = T_world @ res.T_ref_new
             stamps.append(ts)
             poses.append(T_world.copy())
-        valid = select_points(pyr[0], depth, args.min_grad)
+        valid = select_points(pyr[0], depth, args.min_grad, args.max_depth_step, args.edge_window)
         with np.errstate(divide="ignore"):
             idepth = np.where(valid, 1.0 / np.maximum(depth, 1e-6), 0.0).astype(np.float32)
         var = (args.idepth_var + args.idepth_var_rel * idepth ** 2).astype(np.float32)
-        ref = TrackingReference.build(pyr, idepth, var, valid, intr, k)
+        ref = TrackingReference.build(pyr, idepth, var, valid, intr, k, smooth_sigma=cfg.tracking.smooth_sigma)
 
     est = Trajectory(np.array(stamps), np.array(poses))
     if args.out:
@@ -138,8 +150,12 @@ def main(argv=None) -> int:
     p.add_argument("--out", help="TUM trajectory output file")
     p.add_argument("--max-frames", type=int, default=0)
     p.add_argument("--min-grad", type=float, default=5.0, help="reference pixel selection (0 = all with depth)")
+    p.add_argument("--max-depth-step", type=float, default=0.05,
+                   help="drop pixels whose neighbourhood depth range exceeds this fraction of their depth (0 = off)")
+    p.add_argument("--edge-window", type=int, default=5, help="neighbourhood size of the depth-step test")
     p.add_argument("--idepth-var", type=float, default=1e-4, help="constant idepth variance of depth pixels")
     p.add_argument("--idepth-var-rel", type=float, default=0.0, help="extra idepth variance per idepth^2")
+    p.add_argument("--pre-blur", type=float, default=0.0, help="Gaussian blur (sigma, px) of the mapping-resolution image")
     p.add_argument("--constant-velocity", action="store_true", help="initial guess = last relative motion")
     p.add_argument("--depth-resample", choices=("rect", "average"), default="rect",
                    help="depth at mapping resolution: the rectifier's nearest-valid sample, or the block average")

@@ -44,6 +44,57 @@ ST_ERR = 2         # final mean energy
 ST_STATUS = 3      # 0 converged/cap, 1 no points, 2 singular system
 ST_SIZE = 4
 
+INTERP_BILINEAR = 0   # bilinear intensity + bilinearly interpolated central-difference gradients
+INTERP_BSPLINE = 1    # cubic B-spline value and its exact derivative (4x4 taps)
+
+
+@njit(cache=True, nogil=True, fastmath=False, inline="always")
+def _sample_bspline(coef, x0, y0, tx, ty):
+    """Cubic B-spline value and gradient at ``(x0 + tx, y0 + ty)`` from coefficients ``coef[:, :, 0]``."""
+    sx = 1.0 - tx
+    sy = 1.0 - ty
+    tx2 = tx * tx
+    ty2 = ty * ty
+    wx0 = sx * sx * sx / 6.0
+    wx1 = (3.0 * tx2 * tx - 6.0 * tx2 + 4.0) / 6.0
+    wx2 = (-3.0 * tx2 * tx + 3.0 * tx2 + 3.0 * tx + 1.0) / 6.0
+    wx3 = tx2 * tx / 6.0
+    dx0 = -0.5 * sx * sx
+    dx1 = 1.5 * tx2 - 2.0 * tx
+    dx2 = -1.5 * tx2 + tx + 0.5
+    dx3 = 0.5 * tx2
+    wy0 = sy * sy * sy / 6.0
+    wy1 = (3.0 * ty2 * ty - 6.0 * ty2 + 4.0) / 6.0
+    wy2 = (-3.0 * ty2 * ty + 3.0 * ty2 + 3.0 * ty + 1.0) / 6.0
+    wy3 = ty2 * ty / 6.0
+    dy0 = -0.5 * sy * sy
+    dy1 = 1.5 * ty2 - 2.0 * ty
+    dy2 = -1.5 * ty2 + ty + 0.5
+    dy3 = 0.5 * ty2
+    val = 0.0
+    gx = 0.0
+    gy = 0.0
+    for j in range(4):
+        if j == 0:
+            wy = wy0; dy = dy0
+        elif j == 1:
+            wy = wy1; dy = dy1
+        elif j == 2:
+            wy = wy2; dy = dy2
+        else:
+            wy = wy3; dy = dy3
+        yy = y0 - 1 + j
+        c0 = np.float64(coef[yy, x0 - 1, 0])
+        c1 = np.float64(coef[yy, x0, 0])
+        c2 = np.float64(coef[yy, x0 + 1, 0])
+        c3 = np.float64(coef[yy, x0 + 2, 0])
+        rv = wx0 * c0 + wx1 * c1 + wx2 * c2 + wx3 * c3
+        rd = dx0 * c0 + dx1 * c1 + dx2 * c2 + dx3 * c3
+        val += wy * rv
+        gx += wy * rd
+        gy += dy * rv
+    return val, gx, gy
+
 
 # Reduction-only kernel: "reassoc" lets LLVM vectorise the sums (summation order changes, nothing
 # else: NaN/inf semantics stay strict, no approximate functions).
@@ -87,11 +138,13 @@ def _reduce_normal_equations(buf, n, acc):
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def accumulate(pts, img3, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
+def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
                good_c2, good_g2, border, min_z, buf, acc):
     """Residuals, weights and normal equations of all points at pose ``T`` (= T_new_ref).
 
-    ``img3``: (H, W, 3) float32 ``[I, gx, gy]`` of the new image at this level.
+    ``img3``: (H, W, 3) float32 of the new image at this level: ``[I, gx, gy]`` sampled bilinearly
+    when ``interp == INTERP_BILINEAR``; channel 0 = cubic B-spline coefficients (value and exact
+    derivative of the spline) when ``interp == INTERP_BSPLINE`` (then ``border`` must be >= 1).
     A point is used when its warped depth exceeds ``min_z``, its position lies in
     ``[border, W-1-border) x [border, H-1-border)`` and the interpolated values are finite.
     Residual ``r = I_new(warp) - (aff_a * I_ref + aff_b)``; weight
@@ -134,16 +187,19 @@ def accumulate(pts, img3, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, af
         y0 = int(v)
         ax = u - x0
         ay = v - y0
-        w00 = (1.0 - ax) * (1.0 - ay)
-        w10 = ax * (1.0 - ay)
-        w01 = (1.0 - ax) * ay
-        w11 = ax * ay
-        i_new = (w00 * img3[y0, x0, 0] + w10 * img3[y0, x0 + 1, 0]
-                 + w01 * img3[y0 + 1, x0, 0] + w11 * img3[y0 + 1, x0 + 1, 0])
-        gx = (w00 * img3[y0, x0, 1] + w10 * img3[y0, x0 + 1, 1]
-              + w01 * img3[y0 + 1, x0, 1] + w11 * img3[y0 + 1, x0 + 1, 1])
-        gy = (w00 * img3[y0, x0, 2] + w10 * img3[y0, x0 + 1, 2]
-              + w01 * img3[y0 + 1, x0, 2] + w11 * img3[y0 + 1, x0 + 1, 2])
+        if interp == INTERP_BSPLINE:
+            i_new, gx, gy = _sample_bspline(img3, x0, y0, ax, ay)
+        else:
+            w00 = (1.0 - ax) * (1.0 - ay)
+            w10 = ax * (1.0 - ay)
+            w01 = (1.0 - ax) * ay
+            w11 = ax * ay
+            i_new = (w00 * img3[y0, x0, 0] + w10 * img3[y0, x0 + 1, 0]
+                     + w01 * img3[y0 + 1, x0, 0] + w11 * img3[y0 + 1, x0 + 1, 0])
+            gx = (w00 * img3[y0, x0, 1] + w10 * img3[y0, x0 + 1, 1]
+                  + w01 * img3[y0 + 1, x0, 1] + w11 * img3[y0 + 1, x0 + 1, 1])
+            gy = (w00 * img3[y0, x0, 2] + w10 * img3[y0, x0 + 1, 2]
+                  + w01 * img3[y0 + 1, x0, 2] + w11 * img3[y0 + 1, x0 + 1, 2])
         i_ref = np.float64(pts[i, 3])
         r = i_new - (aff_a * i_ref + aff_b)
         if not (abs(r) < np.inf and abs(gx) < np.inf and abs(gy) < np.inf):
@@ -305,10 +361,10 @@ def _affine_from_sums(acc, a_prev, b_prev, min_var):
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def lm_level(pts, img3, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_in, aff_k, aff_enabled,
+def lm_level(pts, img3, interp, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_in, aff_k, aff_enabled,
              aff_min_var, good_c2, good_g2, border, min_z, max_iter, conv_ratio, conv_eps,
              lambda_init, lambda_accept_max, lambda_accept_factor, lambda_reject_factor,
-             min_points, solve_eps, buf, T_out, acc_out, aff_out, stats):
+             min_points, solve_eps, min_hessian_diag, buf, T_out, acc_out, aff_out, stats):
     """Iteratively re-weighted Levenberg-Marquardt on ``T_new_ref`` for one pyramid level.
 
     Schedule (ALGORITHM_NOTES): lambda starts at 0; accepted step: ``lambda <- 0`` if
@@ -332,7 +388,7 @@ def lm_level(pts, img3, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_in, aff_k
     inc = np.zeros(6)
     aff_a = aff_in[0]
     aff_b = aff_in[1]
-    accumulate(pts, img3, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
+    accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
                good_c2, good_g2, border, min_z, buf, acc)
     evals = 1
     iters = 0
@@ -346,6 +402,13 @@ def lm_level(pts, img3, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_in, aff_k
         while iters < max_iter and not done:
             iters += 1
             unpack_normal_equations(acc, H, g)
+            hmax = 0.0
+            for i in range(6):
+                if H[i, i] > hmax:
+                    hmax = H[i, i]
+            if not (hmax > min_hessian_diag * acc[ACC_N]):
+                status = 2
+                break
             tries = 0
             while True:
                 tries += 1
@@ -360,7 +423,7 @@ def lm_level(pts, img3, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_in, aff_k
                     break
                 exp_se3_nb(inc, E)
                 _matmul4(E, T, Tn)
-                accumulate(pts, img3, Tn, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
+                accumulate(pts, img3, interp, Tn, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
                            good_c2, good_g2, border, min_z, buf, acc_new)
                 evals += 1
                 n_new = acc_new[ACC_N]
@@ -422,13 +485,13 @@ def warmup() -> None:
     T = np.eye(4)
     acc = np.empty(ACC_SIZE)
     buf = np.empty((BUF_ROWS, n))
-    accumulate(pts, img3, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3, buf, acc)
+    accumulate(pts, img3, INTERP_BILINEAR, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3, buf, acc)
     T_out = np.empty((4, 4))
     aff = np.array([1.0, 0.0])
     aff_out = np.empty(2)
     stats = np.zeros(ST_SIZE)
-    lm_level(pts, img3, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, aff, 5.0, True, 1e-6, 1600.0, 0.25, 1.0, 1e-3,
-             3, 0.999, 1e-8, 0.2, 0.2, 0.5, 2.0, 6, 1e-12, buf, T_out, acc, aff_out, stats)
+    lm_level(pts, img3, INTERP_BSPLINE, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, aff, 5.0, True, 1e-6, 1600.0, 0.25, 1.0, 1e-3,
+             3, 0.999, 1e-8, 0.2, 0.2, 0.5, 2.0, 6, 1e-12, 1e-2, buf, T_out, acc, aff_out, stats)
     x = np.zeros(6)
     solve6(np.eye(6), np.ones(6), x, 1e-12)
     E = np.empty((4, 4))

@@ -28,9 +28,19 @@ class TrackingConfig:
     lm_lambda_accept_max: float = param(0.2, "after an accepted step lambda becomes 0 if it was at most this", 0.0, 100.0)
     lm_lambda_accept_factor: float = param(0.5, "after an accepted step a larger lambda is multiplied by this", 0.0, 1.0)
     lm_lambda_reject_factor: float = param(2.0, "after a rejected step a non-zero lambda is multiplied by this", 1.0, 100.0)
+    smooth_sigma: float = param(0.7, "Gaussian blur (std, px of each level) of reference and new tracking images "
+                                "before sampling: band-limits them so sub-pixel interpolation is accurate (0 = off)",
+                                0.0, 5.0)
+    interpolation: str = param("bspline", "sampling of the new image on the finest tracking level: bilinear (4 taps, "
+                               "interpolated central-difference gradients) or bspline (cubic B-spline, 16 taps, "
+                               "exact gradient, far less pixel locking)", choices=("bilinear", "bspline"))
+    interpolation_coarse: str = param("bilinear", "sampling on the coarser levels (bilinear: smoother, wider basin)",
+                                      choices=("bilinear", "bspline"))
     border_px: float = param(1.0, "a warped point is used only this far (px) inside the image border", 0.0, 20.0)
     min_warp_depth: float = param(1e-3, "skip points whose warped depth is at or below this (map units)", 0.0, 10.0)
     min_points: int = param(10, "a level with fewer usable points than this is skipped (finest: lost)", 6, 100000)
     coarsest_level: int = param(4, "coarsest pyramid level used for tracking (capped by the pyramid)", 0, 10)
+    min_hessian_diag: float = param(1e-2, "treat the system as singular when max diag(H) per used point is below this "
+                                    "(textureless image: no update)", 0.0, 1e6)
     solve_eps: float = param(1e-12, "Cholesky pivot threshold relative to the largest diagonal (singular system)", 0.0, 1.0)
     affine_min_var: float = param(1.0, "keep the brightness gain a when the weighted reference intensity variance is below this", 0.0, 1e4)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import PinholeIntrinsics
-from ..image import idepth_pyramid
+from ..image import gaussian_blur, idepth_pyramid
 from ._kernels import PTS_COLS
 
 
@@ -26,7 +26,7 @@ class ReferenceLevel:
     """Valid points of one pyramid level, flat contiguous read-only arrays of length N.
 
     ``x, y``: pixel coordinates at this level (float32, pixel centres at integers);
-    ``intensity``: reference image value; ``idepth``, ``idepth_var``: from the depth pyramid;
+    ``intensity``: reference image value (after the reference's ``smooth_sigma`` blur); ``idepth``, ``idepth_var``: from the depth pyramid;
     ``points``: (N, 5) float32 packed ``[X, Y, Z, intensity, idepth_var]`` with ``(X, Y, Z)`` the
     point in the reference camera (``Z = 1/idepth``), the layout the tracking kernel reads.
     """
@@ -56,10 +56,12 @@ class TrackingReference:
     """
 
     __slots__ = ("frame_id", "intrinsics0", "levels", "image_pyr", "idepth_pyr", "idepth_var_pyr",
-                 "valid_pyr", "_frozen")
+                 "valid_pyr", "smooth_sigma", "_frozen")
 
-    def __init__(self, frame_id, intrinsics0, levels, image_pyr, idepth_pyr, idepth_var_pyr, valid_pyr):
+    def __init__(self, frame_id, intrinsics0, levels, image_pyr, idepth_pyr, idepth_var_pyr, valid_pyr,
+                 smooth_sigma=0.0):
         self.frame_id = frame_id
+        self.smooth_sigma = float(smooth_sigma)
         self.intrinsics0 = intrinsics0
         self.levels = tuple(levels)
         self.image_pyr = tuple(image_pyr)
@@ -86,14 +88,20 @@ class TrackingReference:
 
     @classmethod
     def build(cls, image_pyr, idepth, idepth_var, valid, intrinsics0: PinholeIntrinsics,
-              frame_id=0) -> "TrackingReference":
+              frame_id=0, smooth_sigma: float | None = None) -> "TrackingReference":
         """Build from the reference image pyramid and its level-0 inverse-depth map.
 
         ``image_pyr``: list of float32 images (level 0 = mapping resolution, as from
         :func:`lite_vo.image.image_pyramid`); ``idepth``, ``idepth_var``: HxW float (level 0);
         ``valid``: HxW bool. Pixels with non-finite values, ``idepth <= 0`` or ``idepth_var <= 0``
         are treated as invalid. The depth pyramid (eq. 5.2/5.3) gets as many levels as ``image_pyr``.
+        ``smooth_sigma``: Gaussian blur of each level before its intensities are sampled (None: the
+        ``TrackingConfig`` default; pass ``config.tracking.smooth_sigma`` when it is overridden). The
+        tracker blurs new images with the reference's ``smooth_sigma``, so both always match.
         """
+        if smooth_sigma is None:
+            from .config import TrackingConfig
+            smooth_sigma = TrackingConfig().smooth_sigma
         n_lvl = len(image_pyr)
         if n_lvl < 1:
             raise ValueError("image_pyr is empty")
@@ -119,11 +127,11 @@ class TrackingReference:
             pts[:, 0] = (xs - K.cx) / K.fx * z
             pts[:, 1] = (ys - K.cy) / K.fy * z
             pts[:, 2] = z
-            pts[:, 3] = img[ys, xs]
+            pts[:, 3] = (gaussian_blur(img, smooth_sigma) if smooth_sigma > 0 else img)[ys, xs]
             pts[:, 4] = vs[lvl][ys, xs]
             levels.append(ReferenceLevel(
                 lvl=lvl, intrinsics=K, x=_ro(xs.astype(np.float32)), y=_ro(ys.astype(np.float32)),
                 intensity=_ro(pts[:, 3].copy()), idepth=_ro(d.astype(np.float32)),
                 idepth_var=_ro(pts[:, 4].copy()), points=_ro(pts)))
         return cls(frame_id, intrinsics0, levels, imgs, [_ro(d) for d in ds], [_ro(v) for v in vs],
-                   [_ro(m) for m in ms])
+                   [_ro(m) for m in ms], smooth_sigma)

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..camera import PinholeIntrinsics
 from ..geometry import inverse_se3
-from ..image import intensity_gradient_stack
+from ..image import bspline_coefficient_stack, gaussian_blur, intensity_gradient_stack
 from . import _kernels as K
 from .config import TrackingConfig
 from .reference import TrackingReference
@@ -74,6 +74,11 @@ class Tracker:
         self._aff_out = np.empty(2)
         self._stats = np.zeros(K.ST_SIZE)
         self._buf = np.empty((K.BUF_ROWS, 1024))
+        modes = {"bspline": K.INTERP_BSPLINE, "bilinear": K.INTERP_BILINEAR}
+        self._interp_fine = modes[config.interpolation]
+        self._interp_coarse = modes[config.interpolation_coarse]
+        if K.INTERP_BSPLINE in (self._interp_fine, self._interp_coarse) and config.border_px < 1.0:
+            raise ValueError("tracking.border_px must be >= 1 with bspline interpolation")
 
     def _max_iter(self, lvl: int) -> int:
         c = self.config
@@ -117,12 +122,18 @@ class Tracker:
                                  f"{(intr.height, intr.width)}")
             if self._buf.shape[1] < lv.num_points:
                 self._buf = np.empty((K.BUF_ROWS, max(lv.num_points, 2 * self._buf.shape[1])))
-            img3 = self._img3[lvl] = intensity_gradient_stack(img, self._img3[lvl])
-            K.lm_level(lv.points, img3, T, intr.fx, intr.fy, intr.cx, intr.cy, sigma_i2, c.huber,
+            if ref.smooth_sigma > 0:
+                img = gaussian_blur(img, ref.smooth_sigma)
+            interp = self._interp_fine if lvl == finest else self._interp_coarse
+            if interp == K.INTERP_BSPLINE:
+                img3 = self._img3[lvl] = bspline_coefficient_stack(img, self._img3[lvl])
+            else:
+                img3 = self._img3[lvl] = intensity_gradient_stack(img, self._img3[lvl])
+            K.lm_level(lv.points, img3, interp, T, intr.fx, intr.fy, intr.cx, intr.cy, sigma_i2, c.huber,
                        aff, c.affine_huber, bool(c.affine_brightness), c.affine_min_var, good_c2, good_g2,
                        float(c.border_px), c.min_warp_depth, self._max_iter(lvl), c.converge_ratio,
                        c.converge_eps, c.lm_lambda_init, c.lm_lambda_accept_max, c.lm_lambda_accept_factor,
-                       c.lm_lambda_reject_factor, c.min_points, c.solve_eps, self._buf, self._T_out, acc,
+                       c.lm_lambda_reject_factor, c.min_points, c.solve_eps, c.min_hessian_diag, self._buf, self._T_out, acc,
                        self._aff_out, self._stats)
             status = int(self._stats[K.ST_STATUS])
             if status != 1 and np.all(np.isfinite(self._T_out)):
