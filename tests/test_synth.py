@@ -121,16 +121,13 @@ def test_warmup_runs():
 # ---------------------------------------------------------------- photometric consistency
 
 
-def _reprojection_errors(frame_a, frame_b, K, T_wa, T_wb, faces_a, faces_b, margin=2):
-    """|I_a(x) - I_b(project(x with depth_a))| on pixels away from occlusion boundaries."""
-    h, w = frame_a.shape
-    ker = np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)
-    fa = faces_a.astype(np.float32)
-    same = (cv2.dilate(fa, ker) == cv2.erode(fa, ker))  # face constant in the neighbourhood
-    v, u = np.nonzero(same[margin:h - margin, margin:w - margin])
-    v, u = v + margin, u + margin
-    depth_a = frame_a.depth if hasattr(frame_a, "depth") else None
-    return u, v, same
+def _bilinear(img, x, y):
+    x0 = np.floor(x).astype(int)
+    y0 = np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    top = (1 - fx) * img[y0, x0] + fx * img[y0, x0 + 1]
+    bot = (1 - fx) * img[y0 + 1, x0] + fx * img[y0 + 1, x0 + 1]
+    return (1 - fy) * top + fy * bot
 
 
 def _warp_compare(img_a, depth_a, faces_a, img_b, depth_b, K, T_wa, T_wb, margin=2):
@@ -149,9 +146,8 @@ def _warp_compare(img_a, depth_a, faces_a, img_b, depth_b, K, T_wa, T_wb, margin
     ui, vi = np.rint(ub).astype(int).clip(0, w - 1), np.rint(vb).astype(int).clip(0, h - 1)
     # visible in b: b's depth at the projection agrees (no occluder in front)
     visible = inside & (np.abs(depth_b[vi, ui] - p_b[:, 2]) < 0.01 * p_b[:, 2] + 0.01)
-    sampled = cv2.remap(img_b.astype(np.float32), ub.astype(np.float32)[:, None],
-                        vb.astype(np.float32)[:, None], cv2.INTER_LINEAR)[:, 0]
-    err = np.abs(sampled - img_a[v, u])[visible]
+    sampled = _bilinear(img_b.astype(np.float64), ub[visible], vb[visible])
+    err = np.abs(sampled - img_a[v, u][visible])
     return err, p_b[visible, 2], depth_b[vi, ui][visible]
 
 
