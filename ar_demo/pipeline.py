@@ -10,9 +10,14 @@ rate) -> physics -> rendering at full camera resolution -> video.
   (``poses="estimate"``: :class:`lite_vo.system.VisualOdometry`) or with ground-truth poses and a
   semi-dense map made from the ground-truth depth (``poses="gt"``): switching is one flag.
 
-Threads: ``on_map`` may be called from the VO's mapping thread (realtime mode): it only swaps a
-tuple under ``_map_lock``. Everything else (physics, GL context, video) belongs to the thread that
-calls ``on_frame`` (the tracking thread); the world-model worker owns only its builds.
+Threads (Fig. 5.7: all components run in parallel):
+* ``on_map`` may be called from the VO's mapping thread (realtime mode): it only swaps a tuple
+  under ``_map_lock``;
+* the thread calling ``on_frame`` (the tracking thread) owns the physics, the IMU filter and the
+  world-model hand-over, and snapshots each frame into an immutable :class:`RenderJob`;
+* the world-model worker (:class:`~ar_demo.world_model.AsyncWorldModelBuilder`) owns its builds;
+* the render thread (``render_thread=true``) owns the GL context and the video writer and renders
+  the jobs in order (a bounded queue: the caller waits instead of dropping frames).
 
 Imports: numpy, cv2, lite_vo, ar_demo modules; pybullet/moderngl/trimesh through them.
 """
@@ -102,6 +107,73 @@ def look_at(eye, target, up) -> np.ndarray:
     return T
 
 
+@dataclass(frozen=True)
+class RenderJob:
+    """One video frame to render; all arrays are read-only snapshots."""
+    background: np.ndarray
+    T_world_cam: np.ndarray | None
+    near_far: tuple
+    occluder: tuple | None
+    objects: list
+    idepth: np.ndarray | None
+    ground: GroundPlane | None
+    scene_depth: float | None
+
+
+class _RenderThread:
+    """Renders and writes frames in order in its own thread (it owns the GL context and, through
+    the sink's ``_write``, the video writer). ``put`` blocks when ``queue_size`` frames are waiting,
+    so no frame is ever dropped; ``close`` drains the queue."""
+
+    def __init__(self, sink: "ARSink", make_renderer, queue_size: int):
+        import queue
+        self._sink = sink
+        self._queue: "queue.Queue" = queue.Queue(maxsize=max(1, int(queue_size)))
+        self._error: BaseException | None = None
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(make_renderer,), name="ar-render", daemon=True)
+        self._thread.start()
+        self._ready.wait()
+        self.raise_error()                      # e.g. no EGL: fail in the constructor, like the inline path
+
+    def _run(self, make_renderer) -> None:
+        renderer = None
+        try:
+            renderer = make_renderer()
+        except BaseException as err:
+            self._error = err
+        self._ready.set()
+        while True:
+            job = self._queue.get()
+            if job is None:
+                break
+            if self._error is not None:
+                continue                        # keep draining so put() never blocks forever
+            try:
+                t0 = time.perf_counter()
+                frame = self._sink._render_job(renderer, job)
+                self._sink.times["render"].append((time.perf_counter() - t0) * 1e3)
+                self._sink._write(frame)
+            except BaseException as err:
+                self._error = err
+        if renderer is not None:
+            renderer.release()
+
+    def put(self, job: RenderJob) -> None:
+        self.raise_error()
+        self._queue.put(job)
+
+    def close(self) -> None:
+        if self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join()
+
+    def raise_error(self) -> None:
+        if self._error is not None:
+            err, self._error = self._error, None
+            raise err
+
+
 class ARSink(_SinkBase):
     """The AR demo as a VO output sink (see the module docstring)."""
 
@@ -121,9 +193,15 @@ class ARSink(_SinkBase):
         self._map: tuple | None = None           # newest (frame_id, ts, T_world_cam, idepth, var, intr); under _map_lock
         self._map_seq = 0
         # owned by the on_frame thread
-        self.renderer = renderer or ARRenderer(ambient=cfg.render_ambient,
-                                               occluder_offset=(1.0 if cfg.occluder_offset > 0 else 0.0,
-                                                                cfg.occluder_offset))
+        def make_renderer():
+            return ARRenderer(ambient=cfg.render_ambient,
+                              occluder_offset=(1.0 if cfg.occluder_offset > 0 else 0.0, cfg.occluder_offset))
+        self.renderer = None
+        self._render_thread = None
+        if cfg.render_thread and renderer is None:
+            self._render_thread = _RenderThread(self, make_renderer, cfg.render_queue)
+        else:
+            self.renderer = renderer or make_renderer()
         self.car_parts = load_racecar_parts()
         self.gravity = GravityFilter(cfg.acc_lowpass_tau_s)
         self._last_acc_t = -np.inf
@@ -196,13 +274,7 @@ class ARSink(_SinkBase):
             self.physics.step(dt * self.cfg.time_scale, target_xy=target)
             self.times["simulation"].append((time.perf_counter() - t0) * 1e3)
             self.car_path.append(self.physics.car_state().T_phys_base[:3, 3].copy())
-        t0 = time.perf_counter()
-        frame = self._render(result.index, image, T, the_map)
-        self.times["render"].append((time.perf_counter() - t0) * 1e3)
-        if self.writer is None:
-            from .video import VideoWriter
-            self.writer = VideoWriter(self.out_video, self.fps, (frame.shape[1], frame.shape[0]))
-        self.writer.write(frame)
+        self._emit(self._make_job(result.index, image, T, the_map))
         for k in [k for k in self._images if k <= result.index]:   # also frames the VO dropped
             del self._images[k]
         self._frames += 1
@@ -320,36 +392,45 @@ class ARSink(_SinkBase):
             return []
         return car_objects(self.car_parts, self.physics.link_poses_phys(), self.physics.frame.S_world_phys)
 
-    def _render(self, index, image, T, the_map) -> np.ndarray:
-        bg = self._background(index, image)
-        near, far = self._near_far()
-        if T is None:
+    def _make_job(self, index, image, T, the_map) -> "RenderJob":
+        """Everything one video frame needs, as immutable data (safe to hand to the render thread)."""
+        mesh = self.world.mesh if self.world is not None else None
+        return RenderJob(
+            background=self._background(index, image), T_world_cam=T, near_far=self._near_far(),
+            occluder=(mesh.vertices_world, mesh.faces) if mesh is not None else None,
+            objects=self._car_objects() if T is not None else [],
+            idepth=the_map[3] if (the_map is not None and self.cfg.panels) else None,
+            ground=self.ground, scene_depth=self.scene_depth)
+
+    def _render_job(self, renderer, job: "RenderJob") -> np.ndarray:
+        near, far = job.near_far
+        bg = job.background
+        if job.T_world_cam is None:
             main = np.repeat(bg[..., None], 3, axis=2) if bg.ndim == 2 else bg.copy()
             cv2.putText(main, "tracking lost", (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 80, 80), 2)
         else:
-            occ = (self.world.mesh.vertices_world, self.world.mesh.faces) if self.world is not None else None
-            objects = self._car_objects()
-            main = self.renderer.render(self.intr, T, near, far, background=bg, occluder=occ, objects=objects)
+            main = renderer.render(self.intr, job.T_world_cam, near, far, background=bg, occluder=job.occluder,
+                                   objects=job.objects)
         if not self.cfg.panels:
             return main
         from .video import colorize_idepth, compose_panels, label, panel_size
         pw, ph = panel_size(self.intr.width, self.intr.height)
-        depth_panel = colorize_idepth(the_map[3] if the_map is not None else np.full((ph, pw), np.nan), (pw, ph))
+        depth_panel = colorize_idepth(job.idepth if job.idepth is not None else np.full((ph, pw), np.nan), (pw, ph))
         depth_panel = label(depth_panel, "semi-dense inverse depth")
-        mesh_panel = label(self._mesh_panel(T, pw, ph), "collision mesh")
+        mesh_panel = label(self._mesh_panel(renderer, job, pw, ph), "collision mesh")
         return compose_panels(main, depth_panel, mesh_panel)
 
-    def _mesh_panel(self, T, pw, ph) -> np.ndarray:
-        if self.world is None or T is None or self.ground is None:
+    def _mesh_panel(self, renderer, job: "RenderJob", pw, ph) -> np.ndarray:
+        T, ground = job.T_world_cam, job.ground
+        if job.occluder is None or T is None or ground is None:
             return np.zeros((ph, pw, 3), np.uint8)
-        up = self.ground.normal_world
-        mesh = self.world.mesh
+        up = ground.normal_world
         C = T[:3, 3]
         k = up / np.linalg.norm(up)
         # look at the ground point in the middle of the view (else one scene depth ahead)
-        dist = self.scene_depth or 1.0
+        dist = job.scene_depth or 1.0
         centre = C + T[:3, 2] * dist
-        hit = self.ground.idepth_at(T, self.intr, np.array([self.intr.cx]), np.array([self.intr.cy]))[0]
+        hit = ground.idepth_at(T, self.intr, np.array([self.intr.cx]), np.array([self.intr.cy]))[0]
         if hit > 0 and 1.0 / hit < 3 * dist:
             centre = C + T[:3, :3] @ np.array([0.0, 0.0, 1.0 / hit])
         d = C - centre
@@ -363,20 +444,36 @@ class ARSink(_SinkBase):
         Tv = look_at(eye, centre, up)
         intr = self.intr.scaled(pw, ph)
         intr = PinholeIntrinsics(intr.fx * 0.8, intr.fy * 0.8, intr.cx, intr.cy, pw, ph)
-        dist = np.linalg.norm(d)
-        near, far = self._near_far()
+        near, far = job.near_far
         # camera frustum of the current view
         c = self.intr
         corners = [(0, 0), (c.width - 1, 0), (c.width - 1, c.height - 1), (0, c.height - 1)]
-        s = 0.25 * dist
+        s = 0.25 * np.linalg.norm(d)
         pts = [C + T[:3, :3] @ np.array([(u - c.cx) / c.fx * s, (v - c.cy) / c.fy * s, s]) for u, v in corners]
         segs = []
         for i in range(4):
             segs += [C, pts[i], pts[i], pts[(i + 1) % 4]]
-        return self.renderer.render(intr, Tv, near, far * 2, background=None,
-                                    shaded_meshes=[("panel_mesh", mesh.vertices_world, mesh.faces, (0.55, 0.75, 0.55))],
-                                    objects=self._car_objects(), lines=[(np.array(segs), (1.0, 0.9, 0.2))],
-                                    up_world=up, clear_color=(0.08, 0.08, 0.12))
+        verts, faces = job.occluder
+        return renderer.render(intr, Tv, near, far * 2, background=None,
+                               shaded_meshes=[("panel_mesh", verts, faces, (0.55, 0.75, 0.55))],
+                               objects=job.objects, lines=[(np.array(segs), (1.0, 0.9, 0.2))],
+                               up_world=up, clear_color=(0.08, 0.08, 0.12))
+
+    def _emit(self, job: "RenderJob") -> None:
+        """Render and write one frame: in the render thread when there is one, else right here."""
+        if self._render_thread is not None:
+            self._render_thread.put(job)
+            return
+        t0 = time.perf_counter()
+        frame = self._render_job(self.renderer, job)
+        self.times["render"].append((time.perf_counter() - t0) * 1e3)
+        self._write(frame)
+
+    def _write(self, frame: np.ndarray) -> None:
+        if self.writer is None:
+            from .video import VideoWriter
+            self.writer = VideoWriter(self.out_video, self.fps, (frame.shape[1], frame.shape[0]))
+        self.writer.write(frame)
 
     # ------------------------------------------------------------------ end
     def on_finish(self) -> None:
@@ -385,6 +482,8 @@ class ARSink(_SinkBase):
         self._finished = True
         if self.builder is not None:
             self.builder.close()
+        if self._render_thread is not None:
+            self._render_thread.close()          # renders the queued frames, closes its GL context
         if self.writer is not None:
             self.writer.close()
         if self.mesh_out is not None and self.world is not None:
@@ -411,7 +510,10 @@ class ARSink(_SinkBase):
         }
         if self.physics is not None:
             self.physics.close()
-        self.renderer.release()
+        if self.renderer is not None:
+            self.renderer.release()
+        if self._render_thread is not None:
+            self._render_thread.raise_error()
 
 
 def _rectifier_full(seq, multiple_of: int = 2):
