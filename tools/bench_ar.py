@@ -102,8 +102,10 @@ def main(argv=None) -> int:
              f"Sequence: `{seq.name}` ({args.frames} frames); video at the camera resolution.", "",
              "Per frame, in ms. *world model*: one rebuild (reduce + in-paint eq. 5.6 + mesh), run in the worker "
              "thread every `world_update_every` frames (Fig. 5.7), so it does not add to the frame time; *simulation*: "
-             "pybullet steps for one frame interval + autopilot; *render*: AR view (+ panels) incl. read-back; "
-             "*frame*: everything the sink does per frame (incl. video encoding; not the VO itself). In the VO run, "
+             "pybullet steps for one frame interval + autopilot; *render*: AR view (+ panels) incl. read-back, in the "
+             "render thread; *frame*: what the sink costs the calling (tracking) thread per frame: IMU, world-model "
+             "hand-over, simulation, snapshot for the render thread (rendering and video encoding run in parallel; "
+             "the VO itself is not included). In the VO run, "
              "frames where tracking is lost show only the camera image (no car), which lowers the render times.", ""]
     for name, s in runs.items():
         t = s["timing_ms"]
