@@ -3,6 +3,8 @@
 Owns the hot loop only (ray casting, mip-mapped texture sampling). Scene layout, texture
 generation and validation live in :mod:`lite_vo.synth.scenes` / :mod:`lite_vo.synth.render`.
 Imports numpy and numba only. Thresholds are arguments (numba freezes globals).
+``error_model="numpy"``: no ZeroDivisionError checks in the hot loop (every division is
+guarded or cannot be by zero), ~10 % faster.
 
 Face numbering: the room box (seen from inside) has faces 0..5, solid box ``b`` has faces
 ``6 + 6 b + 0..5``; inside a box, face ``2 * axis + side`` (side 0: the ``lo`` face, 1: ``hi``).
@@ -17,7 +19,7 @@ import numpy as np
 from numba import njit, prange
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _room_exit(o, d, lo, hi, t_min, t_best, face, axis):
     """Exit plane of the room along one axis: updates (t_best, face)."""
     if d > 0.0:
@@ -33,7 +35,7 @@ def _room_exit(o, d, lo, hi, t_min, t_best, face, axis):
     return t_best, face
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _slab(o, d, lo, hi, t_near, t_far, ax_near, side_near, axis):
     """One axis of the ray/box slab test: updates (t_near, t_far, entry axis, entry side);
     returns t_near = +inf on a miss (ray parallel to the slab and outside it)."""
@@ -56,7 +58,7 @@ def _slab(o, d, lo, hi, t_near, t_far, ax_near, side_near, axis):
     return t_near, t_far, ax_near, side_near
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def cast_ray(ox, oy, oz, dx, dy, dz, room_lo, room_hi, box_lo, box_hi, t_min, pu, pv, box_px):
     """Nearest hit ``(t, face)`` of the ray ``o + t d`` (t > t_min); face -1 if nothing is hit.
 
@@ -84,7 +86,7 @@ def cast_ray(ox, oy, oz, dx, dy, dz, room_lo, room_hi, box_lo, box_hi, t_min, pu
     return t_best, face
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def sample_level(tex_data, off, w, h, x, y):
     """Bilinear sample at texel coordinates (x, y) (texel centres at integers), clamped to the edge."""
     if x < 0.0:
@@ -115,7 +117,7 @@ def sample_level(tex_data, off, w, h, x, y):
     return top + fy * (bot - top)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def shade_hit(px, py, pz, dx, dy, dz, face, depth, sample_px, tex_data, tex_meta, tex_nlev,
               tex_origin, tex_texel, lod_bias, min_cos):
     """Trilinear (mip-mapped) texture value of the hit point p on ``face``.
@@ -162,13 +164,13 @@ def shade_hit(px, py, pz, dx, dy, dz, face, depth, sample_px, tex_data, tex_meta
     return v0 + frac * (v1 - v0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _pixel_ray(R, xs, ys):
     return (R[0, 0] * xs + R[0, 1] * ys + R[0, 2], R[1, 0] * xs + R[1, 1] * ys + R[1, 2],
             R[2, 0] * xs + R[2, 1] * ys + R[2, 2])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def render_rows_centre(row_lo, row_hi, R, t, fx, fy, cx, cy, room_lo, room_hi, box_lo, box_hi,
                        box_px, tex_data, tex_meta, tex_nlev, tex_origin, tex_texel, lod_bias,
                        min_cos, t_min, out_img, out_depth, out_face):
@@ -194,7 +196,7 @@ def render_rows_centre(row_lo, row_hi, R, t, fx, fy, cx, cy, room_lo, room_hi, b
                                       tex_texel, lod_bias, min_cos)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def render_rows_refine(row_lo, row_hi, R, t, fx, fy, cx, cy, ss, adaptive, room_lo, room_hi,
                        box_lo, box_hi, box_px, tex_data, tex_meta, tex_nlev, tex_origin,
                        tex_texel, lod_bias, min_cos, t_min, face, out_img):
@@ -234,7 +236,7 @@ def render_rows_refine(row_lo, row_hi, R, t, fx, fy, cx, cy, ss, adaptive, room_
             out_img[v, u] = acc * inv_ss * inv_ss
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def render_image(R, t, fx, fy, cx, cy, ss, adaptive, room_lo, room_hi, box_lo, box_hi, box_px,
                  tex_data, tex_meta, tex_nlev, tex_origin, tex_texel, lod_bias, min_cos, t_min,
                  n_bands, out_img, out_depth, out_face):
