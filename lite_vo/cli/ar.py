@@ -83,6 +83,8 @@ def run(args) -> int:
                               overrides=args.overrides, trajectory_out=args.trajectory, mesh_out=args.mesh,
                               progress=progress_printer(args.quiet), vo_mode=args.mode)
     t = summary["timing_ms"]
+    if not summary["frames_written"]:
+        raise InputError(f"{args.sequence}: no frames were processed, no video written")
     print(f"{out}: {summary['frames_written']} frames {summary['video_size'][0]}x{summary['video_size'][1]}, "
           f"{summary['frames_with_pose']} with a pose; world model {t['world_model']['median']:.1f} ms, "
           f"simulation {t['simulation']['median']:.1f} ms, rendering {t['render']['median']:.1f} ms (medians); "
