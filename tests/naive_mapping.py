@@ -232,7 +232,7 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
                 if code == K.OK and r_var <= prm[K.P_MAX_VAR]:
                     for k, val in (("idepth", r_id), ("idepth_var", r_var), ("idepth_s", r_id), ("var_s", r_var),
                                    ("valid", 1), ("validity", prm[K.P_OBSERVE_VALIDITY]), ("pos_x", px),
-                                   ("pos_y", py), ("ref_id", ref_ids[used])):
+                                   ("pos_y", py), ("ref_id", ref_ids[used]), ("blacklist", 0)):
                         st[k][y, x] = val
                     status[y, x] = 2
                 elif code in (K.BAD_MATCH, K.NO_MATCH):
@@ -271,6 +271,7 @@ def propagate(st, img_old, img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, m
     h, w = img_old.shape
     out = {k: np.zeros((h, w), st[k].dtype) for k in ("idepth", "idepth_var", "idepth_s", "var_s", "valid",
                                                       "validity", "pos_x", "pos_y", "ref_id")}
+    out["blacklist"] = st["blacklist"].copy()      # stays with the pixel, reset where a hypothesis lands
     counts = dict(kept=0, border=0, intensity=0, occluded=0, fused=0)
     for y in range(h):
         for x in range(w):
@@ -328,6 +329,7 @@ def propagate(st, img_old, img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, m
                 out[k][iy, ix] = val
             out["idepth_s"][iy, ix] = out["idepth"][iy, ix]
             out["var_s"][iy, ix] = out["idepth_var"][iy, ix]
+            out["blacklist"][iy, ix] = 0
     return out, counts
 
 

@@ -266,11 +266,13 @@ def _run_propagate(st, img_old, img_new, mg_new, T_new_old, Kc, cfg):
     h, w = img_old.shape
     out = {k: np.zeros((h, w), st[k].dtype) for k in ("idepth", "idepth_var", "idepth_s", "var_s", "valid",
                                                       "validity", "pos_x", "pos_y", "ref_id")}
+    out["blacklist"] = st["blacklist"].copy()
     R, t = np.ascontiguousarray(T_new_old[:3, :3]), np.ascontiguousarray(T_new_old[:3, 3])
     res = K.propagate_kernel(st["idepth_s"], st["idepth_var"], st["valid"], st["validity"], st["pos_x"], st["pos_y"],
                              st["ref_id"], img_old, img_new, mg_new, R, t, Kc.fx, Kc.fy, Kc.cx, Kc.cy,
                              *_prop_args(cfg), out["idepth"], out["idepth_var"], out["idepth_s"], out["var_s"],
-                             out["valid"], out["validity"], out["pos_x"], out["pos_y"], out["ref_id"])
+                             out["valid"], out["validity"], out["pos_x"], out["pos_y"], out["ref_id"],
+                             out["blacklist"])
     return out, res
 
 
@@ -419,7 +421,8 @@ def test_fill_matches_naive():
     names = ("idepth", "idepth_var", "idepth_s", "var_s", "valid", "validity", "pos_x", "pos_y", "ref_id")
     o = {k: st[k].copy() for k in names}
     flag = np.zeros_like(st["valid"])
-    K.fill_kernel(*(o[k] for k in names), st["blacklist"], mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0, flag)
+    bl = st["blacklist"].copy()
+    K.fill_kernel(*(o[k] for k in names), bl, mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0, flag)
     created = naive.fill(st["idepth"], st["idepth_var"], st["valid"], st["validity"], st["ref_id"], st["blacklist"],
                          mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0)
     assert {tuple(p) for p in np.argwhere(flag)} == set(created)
@@ -428,6 +431,8 @@ def test_fill_matches_naive():
     old = st["valid"] == 1
     for k in names:                                                   # existing hypotheses untouched
         np.testing.assert_array_equal(o[k][old], st[k][old])
+    assert np.any(st["blacklist"][flag == 1] < -1)                     # unblacklisted by a strong neighbourhood
+    assert np.all(bl[flag == 1] == 0) and np.array_equal(bl[flag == 0], st["blacklist"][flag == 0])
     for (y, x), (d, rid) in created.items():
         assert o["idepth"][y, x] == pytest.approx(d, rel=1e-5)
         assert o["idepth_s"][y, x] == pytest.approx(d, rel=1e-5)

@@ -189,6 +189,9 @@ def run(args) -> dict:
         if depth is not None:
             idp, var, val = mapper.current()
             row.update(depth_accuracy(idp, val, depth))
+            m = val & (depth > 0) & (idp > 0)
+            if m.any():   # signed error: a bias (scale) shows here, noise does not
+                row["median_signed_rel_error"] = float(np.median((1.0 / idp[m] - depth[m]) / depth[m]))
         rows.append(row)
         if args.verbose:
             print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))

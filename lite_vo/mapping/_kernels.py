@@ -430,6 +430,7 @@ def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, 
                     pos_x[y, x] = px
                     pos_y[y, x] = py
                     ref_id[y, x] = ref_ids[used]
+                    blacklist[y, x] = 0
                     status[y, x] = 2
                 elif code == BAD_MATCH or code == NO_MATCH:
                     blacklist[y, x] -= 1
@@ -472,10 +473,11 @@ def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id
                      img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, min_grad, diff_const2,
                      diff_grad_mult, merge_fac, var_add, validity_cap,
                      o_idepth, o_var, o_idepth_s, o_var_s, o_valid, o_validity, o_pos_x, o_pos_y,
-                     o_ref_id):
+                     o_ref_id, o_blacklist):
     """Forward-warp every hypothesis into the new frame (serial: collisions). ``R, t`` = T_new_old.
 
-    Outputs must be zero-initialised (``o_valid`` all 0). Returns (kept, dropped_border,
+    ``o_valid`` must be all 0 on entry; the other outputs are only written where a hypothesis
+    lands (``o_blacklist`` is reset to 0 there). Returns (kept, dropped_border,
     dropped_intensity, occluded, fused).
     """
     h, w = idepth_s.shape
@@ -556,6 +558,7 @@ def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id
                 n_fused += 1
             o_idepth_s[iy, ix] = o_idepth[iy, ix]
             o_var_s[iy, ix] = o_var[iy, ix]
+            o_blacklist[iy, ix] = 0
     return kept, n_border, n_int, n_occ, n_fused
 
 
@@ -650,6 +653,7 @@ def fill_kernel(idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos
             pos_x[y, x] = x
             pos_y[y, x] = y
             ref_id[y, x] = rid
+            blacklist[y, x] = 0
             new_flag[y, x] = 1
 
 

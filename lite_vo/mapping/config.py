@@ -46,6 +46,7 @@ class MappingConfig:
     validity_max: float = param(5.0, "validity cap: this + validity_max_grad * maxgrad / 255", 0.0, 1e4)
     validity_max_grad: float = param(250.0, "gradient-dependent part of the validity cap", 0.0, 1e5)
     observe_validity: float = param(5.0, "validity of a hypothesis created by stereo", 0.0, 1000.0)
+    blacklist_recovery_frames: int = param(4, "every this many iterations each negative blacklist counter rises by 1 (0 = never)", 0, 10000)
     min_blacklist: int = param(-1, "pixels whose blacklist counter fell below this are not searched and need unblacklist_sum to be filled", -1000, 0)
     # propagation
     propagation_sigma: float = param(0.0, "sigma_p^2 added to the variance on propagation", 0.0, 1.0)

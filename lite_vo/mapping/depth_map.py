@@ -306,7 +306,10 @@ class Mapper:
             float(cfg.min_grad), float(cfg.prop_diff_const) ** 2, float(cfg.prop_diff_grad_fac),
             float(cfg.prop_merge_fac), float(cfg.propagation_sigma), float(cap),
             ns.idepth, ns.idepth_var, ns.idepth_s, ns.var_s, ns.valid, ns.validity, ns.pos_x,
-            ns.pos_y, ns.ref_id)
+            ns.pos_y, ns.ref_id, ns.blacklist)
+        k = cfg.blacklist_recovery_frames
+        if k > 0 and self._iteration % k == 0:
+            np.add(ns.blacklist, 1, out=ns.blacklist, where=ns.blacklist < 0)
         self._spare = old
         self.state = ns
         stats.propagated = int(np.count_nonzero(ns.valid))
