@@ -7,7 +7,8 @@ Folder layout (TUM RGB-D, see ARCHITECTURE.md): ``rgb.txt`` + ``rgb/<t>.png`` (8
 (``t ax ay az``: specific force in the camera frame, ``R_world_cam^T (a_world - g)`` with
 ``g = (0, 0, -9.81)``, so +9.81 m/s^2 along world-up at rest), ``calib.txt`` (``fx fy cx cy``,
 ``width height``, ``depth_scale N``), plus ``exposure.txt`` (``t gain offset`` actually applied:
-``I = gain * I_true + offset``) and ``synth.json`` (the generator's parameters).
+``I = gain * I_true + offset``) and ``synth.json`` (the generator's parameters and the scene's
+boxes: room and box extents in world metres, which boxes are floor obstacles).
 
 Deterministic for a seed (scene textures, trajectory variations, noise). Imports numpy, cv2
 and the synth modules; never GL.
@@ -158,11 +159,12 @@ def generate_sequence(out_dir, scene: str = "room", trajectory: str = "handheld"
     cfg = config or SynthConfig()
     t_start = time.perf_counter()
     out = Path(out_dir)
+    sc = make_scene(scene, seed) if scene in SCENES else None
     # validate everything before touching the disk
     K = default_intrinsics(width, height, cfg)
     frames = iter_frames(scene, trajectory, n_frames, seed, width, height, noise_sigma, blur,
                          exposure, fps, cfg)
-    first = next(frames)
+    first = next(frames)  # validates the arguments before anything is written
     _prepare_out_dir(out, force)
     label = f"lite_vo synth scene={scene} trajectory={trajectory} seed={seed}"
     png = [cv2.IMWRITE_PNG_COMPRESSION, int(cfg.png_compression)]
@@ -224,6 +226,9 @@ def generate_sequence(out_dir, scene: str = "room", trajectory: str = "handheld"
                 n_frames=int(n_frames), seed=int(seed), width=int(width), height=int(height),
                 fps=float(fps), noise_sigma=float(noise_sigma), blur=int(blur),
                 exposure=bool(exposure), config=asdict(cfg),
-                world_frame="metres, z up, floor z=0, gravity (0, 0, -9.81)")
+                world_frame="metres, z up, floor z=0, gravity (0, 0, -9.81)",
+                room={"lo": sc.room_lo.tolist(), "hi": sc.room_hi.tolist()},
+                boxes=[{"name": n, "lo": sc.box_lo[i].tolist(), "hi": sc.box_hi[i].tolist(),
+                        "obstacle": n in sc.obstacles} for i, n in enumerate(sc.box_names)])
     (out / "synth.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
     return GeneratedSequence(out, int(n_frames), K, render_s, time.perf_counter() - t_start)
