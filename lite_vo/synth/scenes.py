@@ -125,7 +125,8 @@ def _build(name: str, layout, obstacles, seed: int) -> Scene:
             shade = 0.6 + 0.4 * max(0.0, float(normal @ LIGHT_DIR))
             base = obj_albedo * rng.uniform(0.8, 1.2)
             tex = face_texture(rng, hi[b] - lo[b], hi[c] - lo[c], texel, base,
-                               contrast=rng.uniform(0.8, 1.3), feature_scale=fscale)
+                               contrast=float(np.exp(rng.uniform(np.log(0.3), np.log(1.2)))),
+                               feature_scale=fscale)
             textures.append(np.clip(tex * shade, 0.0, 255.0))
             origins.append((lo[b], lo[c]))
             texels.append(texel)
