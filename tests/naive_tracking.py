@@ -117,6 +117,7 @@ def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, a
             acc[K.ACC_GOOD] += 1
         else:
             acc[K.ACC_BAD] += 1
+        acc[K.ACC_ABS_R] += abs(r)
         wa = 1.0 if abs(r) <= aff_k else aff_k / abs(r)
         acc[K.ACC_AFF:K.ACC_AFF + 5] += wa * np.array([1, pts[i, 3], i_new, pts[i, 3] ** 2, pts[i, 3] * i_new])
     acc[K.ACC_H:K.ACC_H + 21] = Hm[np.triu_indices(6)]

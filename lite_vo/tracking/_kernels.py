@@ -35,7 +35,8 @@ ACC_GOOD = 29      # good residuals
 ACC_BAD = 30       # bad residuals
 ACC_WR2 = 31       # sum w r^2 (IRLS-weighted squared residual)
 ACC_AFF = 32       # 5 entries: sw, s_ref, s_new, s_ref2, s_ref_new (affine-brightness sums)
-ACC_SIZE = 37
+ACC_ABS_R = 37     # sum |r| (grey levels)
+ACC_SIZE = 38
 
 # lm_level statistics output
 ST_ITER = 0        # outer LM iterations
@@ -162,7 +163,7 @@ def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, a
     r10 = T[1, 0]; r11 = T[1, 1]; r12 = T[1, 2]; t1 = T[1, 3]
     r20 = T[2, 0]; r21 = T[2, 1]; r22 = T[2, 2]; t2 = T[2, 3]
     huber_k2 = huber_k * huber_k
-    energy = 0.0; n_good = 0; wr2 = 0.0
+    energy = 0.0; n_good = 0; wr2 = 0.0; abs_r = 0.0
     a_sw = 0.0; a_sx = 0.0; a_sy = 0.0; a_sxx = 0.0; a_sxy = 0.0
     bjx = buf[0]; bjy = buf[1]; bjz = buf[2]
     bqx = buf[3]; bqy = buf[4]; bqz = buf[5]
@@ -228,6 +229,7 @@ def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, a
         if r * r < good_c2 + good_g2 * (gx * gx + gy * gy):
             n_good += 1
         ar = abs(r)
+        abs_r += ar
         wa = 1.0 if ar <= aff_k else aff_k / ar
         a_sw += wa
         a_sx += wa * i_ref
@@ -240,6 +242,7 @@ def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, a
     acc[ACC_GOOD] = n_good
     acc[ACC_BAD] = m - n_good
     acc[ACC_WR2] = wr2
+    acc[ACC_ABS_R] = abs_r
     acc[ACC_AFF + 0] = a_sw
     acc[ACC_AFF + 1] = a_sx
     acc[ACC_AFF + 2] = a_sy

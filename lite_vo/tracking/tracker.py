@@ -27,7 +27,8 @@ class TrackingResult:
     ``residual``: mean robust (Huber) energy of the normalised residuals on the finest level
     (about 1 when residuals match ``sigma_i``); ``good_ratio``: good/(good+bad) (good-residual test
     of ALGORITHM_NOTES); ``inside_ratio``: points that warped inside / the level's pixel count;
-    ``points_used``: points that warped inside on the finest level; ``lost_reason``: '' or why.
+    ``points_used``: points that warped inside on the finest level; ``mean_abs_residual``: mean
+    ``|I_new - I_ref|`` there (grey levels); ``lost_reason``: '' or why.
     """
     T_ref_new: np.ndarray
     lost: bool
@@ -39,12 +40,13 @@ class TrackingResult:
     iterations: dict = field(default_factory=dict)
     affine: tuple = (1.0, 0.0)
     lost_reason: str = ""
+    mean_abs_residual: float = float("nan")
     total_ms: float = 0.0
     hessian: np.ndarray | None = None
 
     def quality(self) -> dict:
         """Scalar quality numbers as a plain dict (for logs and FrameResult.quality)."""
-        return {"residual": self.residual, "good_ratio": self.good_ratio, "inside_ratio": self.inside_ratio,
+        return {"residual": self.residual, "mean_abs_residual": self.mean_abs_residual, "good_ratio": self.good_ratio, "inside_ratio": self.inside_ratio,
                 "points_used": self.points_used, "lost": self.lost, "lost_reason": self.lost_reason,
                 "affine_a": self.affine[0], "affine_b": self.affine[1], "track_ms": self.total_ms}
 
@@ -161,6 +163,7 @@ class Tracker:
         res.inside_ratio = float(n_in / max(lv.num_pixels, 1))
         res.good_ratio = float(n_good / max(n_good + n_bad, 1.0))
         res.residual = finest_err
+        res.mean_abs_residual = float(finest_acc[K.ACC_ABS_R] / max(n_in, 1.0))
         H = np.empty((6, 6))
         K.unpack_normal_equations(finest_acc, H, np.empty(6))
         res.hessian = H
@@ -172,7 +175,7 @@ class Tracker:
             res.lost_reason = "too few points inside the image"
         elif res.good_ratio < c.min_good_ratio:
             res.lost_reason = "too few good residuals"
-        elif c.max_residual > 0 and not res.residual <= c.max_residual:
+        elif c.max_abs_residual > 0 and not res.mean_abs_residual <= c.max_abs_residual:
             res.lost_reason = "residual too large"
         res.lost = bool(res.lost_reason)
         res.total_ms = (time.perf_counter() - t_start) * 1e3
