@@ -171,15 +171,15 @@ def _pixel_ray(R, xs, ys):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def render_rows_centre(row_lo, row_hi, R, t, fx, fy, cx, cy, room_lo, room_hi, box_lo, box_hi,
+def render_rows_centre(row_lo, row_hi, row_step, R, t, fx, fy, cx, cy, room_lo, room_hi, box_lo, box_hi,
                        box_px, tex_data, tex_meta, tex_nlev, tex_origin, tex_texel, lod_bias,
                        min_cos, t_min, out_img, out_depth, out_face):
-    """Serial kernel, pass 1 for rows [row_lo, row_hi): the ray through each pixel centre gives
+    """Serial kernel, pass 1 for rows range(row_lo, row_hi, row_step): the ray through each pixel centre gives
     the z-depth, the face and a texture value filtered over one pixel footprint."""
     width = out_img.shape[1]
     sample_px = 1.0 / (0.5 * (fx + fy))
     ox, oy, oz = t[0], t[1], t[2]
-    for v in range(row_lo, row_hi):
+    for v in range(row_lo, row_hi, row_step):
         yc = (v - cy) / fy
         for u in range(width):
             dx, dy, dz = _pixel_ray(R, (u - cx) / fx, yc)
@@ -197,7 +197,7 @@ def render_rows_centre(row_lo, row_hi, R, t, fx, fy, cx, cy, room_lo, room_hi, b
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def render_rows_refine(row_lo, row_hi, R, t, fx, fy, cx, cy, ss, adaptive, room_lo, room_hi,
+def render_rows_refine(row_lo, row_hi, row_step, R, t, fx, fy, cx, cy, ss, adaptive, room_lo, room_hi,
                        box_lo, box_hi, box_px, tex_data, tex_meta, tex_nlev, tex_origin,
                        tex_texel, lod_bias, min_cos, t_min, face, out_img):
     """Serial kernel, pass 2: replace a pixel by the mean of ss x ss sub-pixel samples (each
@@ -208,7 +208,7 @@ def render_rows_refine(row_lo, row_hi, R, t, fx, fy, cx, cy, ss, adaptive, room_
     inv_ss = 1.0 / ss
     sample_px = 1.0 / (0.5 * (fx + fy) * ss)
     ox, oy, oz = t[0], t[1], t[2]
-    for v in range(row_lo, row_hi):
+    for v in range(row_lo, row_hi, row_step):
         for u in range(width):
             if adaptive:
                 f0 = face[v, u]
@@ -240,28 +240,23 @@ def render_rows_refine(row_lo, row_hi, R, t, fx, fy, cx, cy, ss, adaptive, room_
 def render_image(R, t, fx, fy, cx, cy, ss, adaptive, room_lo, room_hi, box_lo, box_hi, box_px,
                  tex_data, tex_meta, tex_nlev, tex_origin, tex_texel, lod_bias, min_cos, t_min,
                  n_bands, out_img, out_depth, out_face):
-    """prange driver over row bands. ``R, t``: T_world_cam; outputs are written in place:
+    """prange driver over ``n_bands`` interleaved row sets. ``R, t``: T_world_cam; outputs are written in place:
     ``out_img`` (H, W) float32 anti-aliased intensity, ``out_depth`` z-depth (m) of the
     pixel-centre ray (0 if nothing is hit), ``out_face`` the face index of that ray (-1: none).
     ``ss`` > 1 supersamples every pixel, or only geometric edges when ``adaptive``."""
     height = out_img.shape[0]
-    band = (height + n_bands - 1) // n_bands
+    # band k renders rows k, k + n_bands, ...: interleaved, so every thread gets a fair share of
+    # expensive (floor, boxes) and cheap rows under prange's static scheduling
     for k in prange(n_bands):
-        lo = k * band
-        hi = min(height, lo + band)
-        if lo < hi:
-            render_rows_centre(lo, hi, R, t, fx, fy, cx, cy, room_lo, room_hi, box_lo, box_hi,
-                               box_px, tex_data, tex_meta, tex_nlev, tex_origin, tex_texel,
-                               lod_bias, min_cos, t_min, out_img, out_depth, out_face)
+        render_rows_centre(k, height, n_bands, R, t, fx, fy, cx, cy, room_lo, room_hi, box_lo,
+                           box_hi, box_px, tex_data, tex_meta, tex_nlev, tex_origin, tex_texel,
+                           lod_bias, min_cos, t_min, out_img, out_depth, out_face)
     if ss > 1:
         for k in prange(n_bands):
-            lo = k * band
-            hi = min(height, lo + band)
-            if lo < hi:
-                render_rows_refine(lo, hi, R, t, fx, fy, cx, cy, ss, adaptive, room_lo,
-                                   room_hi, box_lo, box_hi, box_px, tex_data, tex_meta,
-                                   tex_nlev, tex_origin, tex_texel, lod_bias, min_cos, t_min,
-                                   out_face, out_img)
+            render_rows_refine(k, height, n_bands, R, t, fx, fy, cx, cy, ss, adaptive, room_lo,
+                               room_hi, box_lo, box_hi, box_px, tex_data, tex_meta, tex_nlev,
+                               tex_origin, tex_texel, lod_bias, min_cos, t_min, out_face,
+                               out_img)
 
 
 def warmup() -> None:

@@ -82,7 +82,7 @@ def render_frame(scene: Scene, T_world_cam: np.ndarray, intrinsics: PinholeIntri
                           float(intrinsics.cy), ss, bool(cfg.adaptive_aa), scene.room_lo, scene.room_hi, scene.box_lo,
                           scene.box_hi, box_screen_rects(scene, T, intrinsics), scene.tex_data, scene.tex_meta, scene.tex_nlev,
                           scene.tex_origin, scene.tex_texel, float(cfg.lod_bias),
-                          float(cfg.min_cos), 1e-9, h, img, depth, faces)
+                          float(cfg.min_cos), 1e-9, min(h, 64), img, depth, faces)
     if return_faces:
         return img, depth, faces
     return img, depth
