@@ -82,6 +82,26 @@ def test_kernel_matches_naive(room, case, ss, adaptive):
     assert np.all(faces >= 0) and np.all(depth > 0)  # the closed room is always hit
 
 
+def test_kernel_matches_naive_without_boxes(room):
+    import dataclasses
+    empty = dataclasses.replace(room, box_lo=np.zeros((0, 3)), box_hi=np.zeros((0, 3)),
+                                box_names=(), obstacles=())
+    K = PinholeIntrinsics(10.0, 10.0, 5.5, 4.0, 12, 9)
+    T = _lookat([0.5, -1.0, 1.2], [0.0, 0.4, 0.3])
+    img, depth, faces = render_frame(empty, T, K, supersample=2, return_faces=True)
+    n_img, n_depth, n_faces = naive.naive_render(empty, T, K, ss=2)
+    np.testing.assert_array_equal(faces, n_faces)
+    assert np.all(faces < 6)
+    np.testing.assert_allclose(depth, n_depth, rtol=1e-6)
+    np.testing.assert_allclose(img, n_img, atol=2e-3)
+
+
+@pytest.mark.parametrize("bad", [np.full((4, 4), np.nan), np.eye(3)])
+def test_render_frame_rejects_bad_poses(room, bad):
+    with pytest.raises(InputError):
+        render_frame(room, bad, default_intrinsics(16, 12))
+
+
 def test_culling_rectangles_are_conservative(room):
     K = default_intrinsics(80, 60)
     _, P = make_trajectory("handheld", 60, seed=1)
