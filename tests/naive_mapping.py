@@ -194,6 +194,10 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
                 continue
             if nref == 0:
                 continue
+            if has and st["skip"][y, x] > 0:      # converged: wait for more baseline
+                st["skip"][y, x] -= 1
+                status[y, x] = 8
+                continue
             if has:
                 px, py = float(st["pos_x"][y, x]), float(st["pos_y"][y, x])
                 prior = float(st["idepth_s"][y, x])
@@ -208,13 +212,13 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
                 b = nref - 1
                 while b > 0 and line_length(px, py, lo, hi, ref_R[b - 1], ref_t[b - 1], fx, fy, cx, cy) <= prm[K.P_MAX_EPL]:
                     b -= 1
-            code, used = K.OUT_OF_IMAGE, b
+            code, used, r_len = K.OUT_OF_IMAGE, b, 0.0
             while b < nref:
                 ok, ex, ey = epipolar_direction(cur, x, y, px, py, ref_c[b], fx, fy, cx, cy, prm)
                 if not ok:
-                    code = K.NUMERIC
+                    code = K.NO_EPL
                     break
-                code, r_id, r_var, _, _ = line_stereo(
+                code, r_id, r_var, r_len, _ = line_stereo(
                     cur, ref_images[ref_slots[b]], px, py, ex, ey, lo, prior, hi, ref_R[b], ref_t[b],
                     fx, fy, cx, cy, bilinear(gx, px, py), bilinear(gy, px, py), ref_residual[b], prm,
                     b == nref - 1, scratch_len)
@@ -223,6 +227,9 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
                     b += 1
                     continue
                 break
+            if code == K.NO_EPL:
+                status[y, x] = 7
+                continue
             if code in (K.OUT_OF_IMAGE, K.TOO_LONG, K.NUMERIC):
                 status[y, x] = 5
                 continue
@@ -232,7 +239,7 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
                 if code == K.OK and r_var <= prm[K.P_MAX_VAR]:
                     for k, val in (("idepth", r_id), ("idepth_var", r_var), ("idepth_s", r_id), ("var_s", r_var),
                                    ("valid", 1), ("validity", prm[K.P_OBSERVE_VALIDITY]), ("pos_x", px),
-                                   ("pos_y", py), ("ref_id", ref_ids[used]), ("blacklist", 0)):
+                                   ("pos_y", py), ("ref_id", ref_ids[used]), ("blacklist", 0), ("skip", 0)):
                         st[k][y, x] = val
                     status[y, x] = 2
                 elif code in (K.BAD_MATCH, K.NO_MATCH):
@@ -261,6 +268,8 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
             st["idepth_var"][y, x] = min(pvar * r_var / (pvar + r_var), float(st["idepth_var"][y, x]))
             vmax = prm[K.P_VALIDITY_MAX] + g * prm[K.P_VALIDITY_MAX_GRAD] / 255.0
             st["validity"][y, x] = min(st["validity"][y, x] + prm[K.P_VALIDITY_INC], vmax)
+            if r_len < prm[K.P_MIN_EPL]:
+                st["skip"][y, x] = int(prm[K.P_SKIP_CONVERGED])
             status[y, x] = 1
     return status
 
@@ -270,7 +279,7 @@ def propagate(st, img_old, img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, m
     """Twin of ``propagate_kernel``: returns (new state dict, counts)."""
     h, w = img_old.shape
     out = {k: np.zeros((h, w), st[k].dtype) for k in ("idepth", "idepth_var", "idepth_s", "var_s", "valid",
-                                                      "validity", "pos_x", "pos_y", "ref_id")}
+                                                      "validity", "pos_x", "pos_y", "ref_id", "skip")}
     out["blacklist"] = st["blacklist"].copy()      # stays with the pixel, reset where a hypothesis lands
     counts = dict(kept=0, border=0, intensity=0, occluded=0, fused=0)
     for y in range(h):
@@ -316,14 +325,15 @@ def propagate(st, img_old, img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, m
                     out["valid"][iy, ix] = 0
             if not out["valid"][iy, ix]:
                 vals = dict(idepth=d_new, idepth_var=new_var, validity=st["validity"][y, x], pos_x=u, pos_y=v,
-                            ref_id=st["ref_id"][y, x], valid=1)
+                            ref_id=st["ref_id"][y, x], skip=st["skip"][y, x], valid=1)
                 counts["kept"] += 1
             else:
                 ov = float(out["idepth_var"][iy, ix])
                 vals = dict(idepth=(ov * d_new + new_var * float(out["idepth"][iy, ix])) / (ov + new_var),
                             idepth_var=1.0 / (1.0 / ov + 1.0 / new_var),
                             validity=min(out["validity"][iy, ix] + st["validity"][y, x], validity_cap),
-                            ref_id=min(out["ref_id"][iy, ix], st["ref_id"][y, x]))
+                            ref_id=min(out["ref_id"][iy, ix], st["ref_id"][y, x]),
+                            skip=min(out["skip"][iy, ix], st["skip"][y, x]))
                 counts["fused"] += 1
             for k, val in vals.items():
                 out[k][iy, ix] = val

@@ -165,6 +165,7 @@ def _random_state(rng, h, w, frac_valid=0.6):
         "pos_y": (yy + rng.uniform(-0.5, 0.5, (h, w))).astype(np.float32),
         "ref_id": rng.integers(0, 4, (h, w)).astype(np.int64),
         "blacklist": rng.integers(-3, 1, (h, w)).astype(np.int32),
+        "skip": rng.integers(0, 3, (h, w)).astype(np.int32),
     }
 
 
@@ -187,20 +188,22 @@ def test_observe_kernel_matches_naive(tex, stride):
     gx, gy, mg = image_gradients(cur)
     st = _random_state(rng, 48, 64)
     st["idepth_s"][5, 5] = np.nan                        # NaN prior: must not crash or propagate
-    prm = stereo_params(MappingConfig(min_depth=0.4))    # full-range searches fit the small image
+    prm = stereo_params(MappingConfig(min_depth=0.4, converged_skip=2))   # full-range searches fit the small image
     a = {k: v.copy() for k, v in st.items()}
     status = np.zeros((48, 64), np.int8)
     K.observe_kernel(cur, gx, gy, mg, refs, slots, ids, Rs, ts, cs, res, a["idepth"], a["idepth_var"],
                      a["idepth_s"], a["var_s"], a["valid"], a["validity"], a["pos_x"], a["pos_y"], a["ref_id"],
-                     a["blacklist"], Kc.fx, Kc.fy, Kc.cx, Kc.cy, prm, stride, 1 if stride > 1 else 0, 64, status)
+                     a["blacklist"], a["skip"], Kc.fx, Kc.fy, Kc.cx, Kc.cy, prm, stride, 1 if stride > 1 else 0, 64,
+                     status)
     b = {k: v.copy() for k, v in st.items()}
     nstatus = naive.observe(cur, gx, gy, mg, refs, slots, ids, Rs, ts, cs, res, b, Kc.fx, Kc.fy, Kc.cx, Kc.cy,
                             prm, stride, 1 if stride > 1 else 0, 64)
     np.testing.assert_array_equal(status, nstatus)
     for k in st:
         np.testing.assert_allclose(a[k], b[k], rtol=2e-5, atol=1e-6, err_msg=k)
-    counts = np.bincount(status.ravel(), minlength=7)
+    counts = np.bincount(status.ravel(), minlength=8)
     assert counts[1] > 20 and counts[2] > 5 and counts[6] > 0   # updates, creations, low-gradient removals
+    assert counts[8] > 0 and np.any((status == 1) & (a["skip"] == 2))   # skipped and newly converged pixels
 
 
 def test_observe_with_empty_buffer_changes_nothing(tex):
@@ -213,7 +216,7 @@ def test_observe_with_empty_buffer_changes_nothing(tex):
     K.observe_kernel(cur, gx, gy, np.full_like(mg, 50.0), np.zeros((1, 48, 64), np.float32), np.zeros(0, np.int64),
                      np.zeros(0, np.int64), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
                      a["idepth"], a["idepth_var"], a["idepth_s"], a["var_s"], a["valid"], a["validity"], a["pos_x"],
-                     a["pos_y"], a["ref_id"], a["blacklist"], 60.0, 60.0, 31.5, 23.5,
+                     a["pos_y"], a["ref_id"], a["blacklist"], a["skip"], 60.0, 60.0, 31.5, 23.5,
                      stereo_params(MappingConfig()), 1, 0, 64, status)
     for k in st:
         np.testing.assert_array_equal(a[k], st[k])
@@ -236,6 +239,7 @@ def test_fusion_lowers_variance_and_lands_between(tex):
     st["ref_id"][:] = 0
     st["blacklist"][:] = 0
     st["validity"][:] = 5.0
+    st["skip"][:] = 0
     before = {k: v.copy() for k, v in st.items()}
     T_ref_cur = np.linalg.inv(T_ref) @ T_cur
     status = np.zeros((h, w), np.int8)
@@ -243,7 +247,8 @@ def test_fusion_lowers_variance_and_lands_between(tex):
                      T_ref_cur[None, :3, :3].copy(), T_ref_cur[None, :3, 3].copy(),
                      (-T_ref_cur[:3, :3].T @ T_ref_cur[:3, 3])[None], np.zeros(1), st["idepth"], st["idepth_var"],
                      st["idepth_s"], st["var_s"], st["valid"], st["validity"], st["pos_x"], st["pos_y"],
-                     st["ref_id"], st["blacklist"], Kc.fx, Kc.fy, Kc.cx, Kc.cy, stereo_params(MappingConfig()),
+                     st["ref_id"], st["blacklist"], st["skip"], Kc.fx, Kc.fy, Kc.cx, Kc.cy,
+                     stereo_params(MappingConfig()),
                      1, 0, 64, status)
     upd = status == 1
     assert upd.sum() > 500
@@ -265,14 +270,14 @@ def _prop_args(cfg):
 def _run_propagate(st, img_old, img_new, mg_new, T_new_old, Kc, cfg):
     h, w = img_old.shape
     out = {k: np.zeros((h, w), st[k].dtype) for k in ("idepth", "idepth_var", "idepth_s", "var_s", "valid",
-                                                      "validity", "pos_x", "pos_y", "ref_id")}
+                                                      "validity", "pos_x", "pos_y", "ref_id", "skip")}
     out["blacklist"] = st["blacklist"].copy()
     R, t = np.ascontiguousarray(T_new_old[:3, :3]), np.ascontiguousarray(T_new_old[:3, 3])
     res = K.propagate_kernel(st["idepth_s"], st["idepth_var"], st["valid"], st["validity"], st["pos_x"], st["pos_y"],
-                             st["ref_id"], img_old, img_new, mg_new, R, t, Kc.fx, Kc.fy, Kc.cx, Kc.cy,
+                             st["ref_id"], st["skip"], img_old, img_new, mg_new, R, t, Kc.fx, Kc.fy, Kc.cx, Kc.cy,
                              *_prop_args(cfg), out["idepth"], out["idepth_var"], out["idepth_s"], out["var_s"],
                              out["valid"], out["validity"], out["pos_x"], out["pos_y"], out["ref_id"],
-                             out["blacklist"])
+                             out["blacklist"], out["skip"])
     return out, res
 
 
@@ -422,7 +427,8 @@ def test_fill_matches_naive():
     o = {k: st[k].copy() for k in names}
     flag = np.zeros_like(st["valid"])
     bl = st["blacklist"].copy()
-    K.fill_kernel(*(o[k] for k in names), bl, mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0, flag)
+    skip = st["skip"].copy()
+    K.fill_kernel(*(o[k] for k in names), bl, skip, mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0, flag)
     created = naive.fill(st["idepth"], st["idepth_var"], st["valid"], st["validity"], st["ref_id"], st["blacklist"],
                          mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0)
     assert {tuple(p) for p in np.argwhere(flag)} == set(created)
@@ -433,6 +439,7 @@ def test_fill_matches_naive():
         np.testing.assert_array_equal(o[k][old], st[k][old])
     assert np.any(st["blacklist"][flag == 1] < -1)                     # unblacklisted by a strong neighbourhood
     assert np.all(bl[flag == 1] == 0) and np.array_equal(bl[flag == 0], st["blacklist"][flag == 0])
+    assert np.all(skip[flag == 1] == 0) and np.array_equal(skip[flag == 0], st["skip"][flag == 0])
     for (y, x), (d, rid) in created.items():
         assert o["idepth"][y, x] == pytest.approx(d, rel=1e-5)
         assert o["idepth_s"][y, x] == pytest.approx(d, rel=1e-5)

@@ -12,7 +12,8 @@ Map state layout (all HxW, one entry per pixel of the current frame):
 ``idepth, idepth_var`` (float32, the filter state), ``idepth_s, var_s`` (float32, regularised
 values used for tracking and as stereo prior), ``valid`` (uint8), ``validity`` (float32 counter),
 ``pos_x, pos_y`` (float32 sub-pixel location of the hypothesis), ``ref_id`` (int64, oldest frame
-id usable as stereo reference), ``blacklist`` (int32, decremented on removals/failed creations).
+id usable as stereo reference), ``blacklist`` (int32, decremented on removals/failed creations),
+``skip`` (int32, stereo iterations still to skip: a converged pixel waits for more baseline).
 
 Imports: numpy and numba only.
 """
@@ -55,7 +56,8 @@ P_VALIDITY_MAX_GRAD = 27
 P_OBSERVE_VALIDITY = 28
 P_CREATE_PRIOR = 29
 P_MIN_BLACKLIST = 30
-P_N = 31
+P_SKIP_CONVERGED = 31
+P_N = 32
 
 # return codes of line_stereo
 OK = 0
@@ -64,6 +66,7 @@ BAD_MATCH = -2         # ambiguous match or negative depth
 NO_MATCH = -3          # matching error too high
 NUMERIC = -4           # NaN / inf / empty line
 TOO_LONG = -5          # full search line longer than max_epl: try a newer reference
+NO_EPL = -6            # (observe only) epipolar line too short or gradient along it too weak
 
 
 @njit(cache=True, nogil=True, fastmath=False, inline="always")
@@ -341,12 +344,14 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
 @njit(cache=True, nogil=True, fastmath=False, parallel=True)
 def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c,
                    ref_residual, idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x,
-                   pos_y, ref_id, blacklist, fx, fy, cx, cy, prm, stride, offset, scratch_len,
+                   pos_y, ref_id, blacklist, skip, fx, fy, cx, cy, prm, stride, offset, scratch_len,
                    status):
     """One stereo pass over the map (in place). ``ref_*`` index the buffer oldest -> newest.
 
     status per pixel: 0 not tried, 1 updated, 2 created, 3 inconsistent, 4 failed search
-    (no/bad match), 5 no usable reference/epipolar line, 6 removed (gradient too low).
+    (no/bad match), 5 no usable reference (line outside the image, scale change, NaN),
+    6 removed (gradient too low), 7 epipolar line unusable (too short, weak gradient along it),
+    8 skipped (converged: its last search line was shorter than min_epl_search).
     """
     h, w = cur.shape
     nref = ref_slots.shape[0]
@@ -368,6 +373,10 @@ def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, 
             if stride > 1 and (y * w + x) % stride != offset:
                 continue
             if nref == 0:
+                continue
+            if has and skip[y, x] > 0:
+                skip[y, x] -= 1
+                status[y, x] = 8
                 continue
             if has:
                 px = np.float64(pos_x[y, x])
@@ -397,12 +406,13 @@ def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, 
             code = OUT_OF_IMAGE
             r_id = 0.0
             r_var = 0.0
+            r_len = 0.0
             used = b
             while b < nref:
                 slot = ref_slots[b]
                 ok, epxn, epyn = epipolar_direction(cur, x, y, px, py, ref_c[b], fx, fy, cx, cy, prm)
                 if not ok:
-                    code = NUMERIC
+                    code = NO_EPL
                     break
                 gxi = _bilinear(gx, px, py)
                 gyi = _bilinear(gy, px, py)
@@ -414,6 +424,9 @@ def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, 
                     b += 1
                     continue
                 break
+            if code == NO_EPL:
+                status[y, x] = 7
+                continue
             if code == OUT_OF_IMAGE or code == TOO_LONG or code == NUMERIC:
                 status[y, x] = 5
                 continue
@@ -431,6 +444,7 @@ def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, 
                     pos_y[y, x] = py
                     ref_id[y, x] = ref_ids[used]
                     blacklist[y, x] = 0
+                    skip[y, x] = 0
                     status[y, x] = 2
                 elif code == BAD_MATCH or code == NO_MATCH:
                     blacklist[y, x] -= 1
@@ -465,15 +479,17 @@ def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, 
             vmax = prm[P_VALIDITY_MAX] + g * prm[P_VALIDITY_MAX_GRAD] / 255.0
             vnew = validity[y, x] + prm[P_VALIDITY_INC]
             validity[y, x] = vnew if vnew < vmax else vmax
+            if r_len < prm[P_MIN_EPL]:
+                skip[y, x] = np.int32(prm[P_SKIP_CONVERGED])
             status[y, x] = 1
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id, img_old,
+def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id, skip, img_old,
                      img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, min_grad, diff_const2,
                      diff_grad_mult, merge_fac, var_add, validity_cap,
                      o_idepth, o_var, o_idepth_s, o_var_s, o_valid, o_validity, o_pos_x, o_pos_y,
-                     o_ref_id, o_blacklist):
+                     o_ref_id, o_blacklist, o_skip):
     """Forward-warp every hypothesis into the new frame (serial: collisions). ``R, t`` = T_new_old.
 
     ``o_valid`` must be all 0 on entry; the other outputs are only written where a hypothesis
@@ -544,6 +560,7 @@ def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id
                 o_pos_x[iy, ix] = u
                 o_pos_y[iy, ix] = v
                 o_ref_id[iy, ix] = ref_id[y, x]
+                o_skip[iy, ix] = skip[y, x]
                 o_valid[iy, ix] = 1
                 kept += 1
             else:
@@ -555,6 +572,8 @@ def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id
                 o_validity[iy, ix] = mv if mv < validity_cap else validity_cap
                 if ref_id[y, x] < o_ref_id[iy, ix]:
                     o_ref_id[iy, ix] = ref_id[y, x]
+                if skip[y, x] < o_skip[iy, ix]:
+                    o_skip[iy, ix] = skip[y, x]
                 n_fused += 1
             o_idepth_s[iy, ix] = o_idepth[iy, ix]
             o_var_s[iy, ix] = o_var[iy, ix]
@@ -609,7 +628,7 @@ def regularize_kernel(idepth, idepth_var, valid, validity, blacklist, radius, di
 
 
 @njit(cache=True, nogil=True, fastmath=False, parallel=True)
-def fill_kernel(idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist,
+def fill_kernel(idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist, skip,
                 maxgrad, min_grad, min_blacklist, create_th, unblacklist_th, new_var, new_validity,
                 new_flag):
     """Create hypotheses in empty pixels with gradient >= min_grad whose 5x5 validity sum
@@ -654,6 +673,7 @@ def fill_kernel(idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos
             pos_y[y, x] = y
             ref_id[y, x] = rid
             blacklist[y, x] = 0
+            skip[y, x] = 0
             new_flag[y, x] = 1
 
 

@@ -48,6 +48,7 @@ class MappingConfig:
     observe_validity: float = param(5.0, "validity of a hypothesis created by stereo", 0.0, 1000.0)
     blacklist_recovery_frames: int = param(4, "every this many iterations each negative blacklist counter rises by 1 (0 = never)", 0, 10000)
     min_blacklist: int = param(-1, "pixels whose blacklist counter fell below this are not searched and need unblacklist_sum to be filled", -1000, 0)
+    converged_skip: int = param(2, "after an update whose search line was shorter than min_epl_search, skip this many stereo iterations for the pixel", 0, 1000)
     # propagation
     propagation_sigma: float = param(0.0, "sigma_p^2 added to the variance on propagation", 0.0, 1.0)
     border: float = param(3.0, "drop propagated hypotheses this close to the border (px)", 0.0, 50.0)

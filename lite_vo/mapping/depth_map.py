@@ -52,7 +52,9 @@ class MappingStats:
     created: int = 0            # new hypotheses from stereo
     inconsistent: int = 0
     failed: int = 0             # searches without a (good) match
-    no_reference: int = 0       # no usable epipolar line / reference
+    no_reference: int = 0       # no usable reference (line outside the image, scale change)
+    no_epipolar: int = 0        # epipolar line too short / gradient along it too weak
+    skipped_converged: int = 0  # converged pixels waiting for more baseline
     removed_gradient: int = 0
     removed_regularize: int = 0
     filled: int = 0
@@ -98,6 +100,7 @@ def stereo_params(cfg: MappingConfig) -> np.ndarray:
     p[K.P_OBSERVE_VALIDITY] = cfg.observe_validity
     p[K.P_CREATE_PRIOR] = cfg.create_prior_idepth
     p[K.P_MIN_BLACKLIST] = cfg.min_blacklist
+    p[K.P_SKIP_CONVERGED] = cfg.converged_skip
     return p
 
 
@@ -129,6 +132,7 @@ class _State:
         self.pos_y = yy.astype(np.float32)
         self.ref_id = np.zeros((h, w), np.int64)
         self.blacklist = np.zeros((h, w), np.int32)
+        self.skip = np.zeros((h, w), np.int32)
 
 
 @dataclass
@@ -265,7 +269,7 @@ class Mapper:
         self._last_costs = {"observe_ms": stats.stage_ms["observe"],
                             "other_ms": stats.total_ms - stats.stage_ms["observe"],
                             "searched": max(stats.updated + stats.created + stats.inconsistent
-                                            + stats.failed + stats.no_reference, 1)}
+                                            + stats.failed + stats.no_reference + stats.no_epipolar, 1)}
         self._iteration += 1
         self.last_stats = stats
         return stats
@@ -301,12 +305,12 @@ class Mapper:
         fx, fy, cx, cy = self._intr()
         cap = cfg.validity_max + cfg.validity_max_grad
         res = K.propagate_kernel(
-            old.idepth_s, old.idepth_var, old.valid, old.validity, old.pos_x, old.pos_y, old.ref_id,
+            old.idepth_s, old.idepth_var, old.valid, old.validity, old.pos_x, old.pos_y, old.ref_id, old.skip,
             self._cur.image, new.image, new.maxgrad, R, t, fx, fy, cx, cy, float(cfg.border),
             float(cfg.min_grad), float(cfg.prop_diff_const) ** 2, float(cfg.prop_diff_grad_fac),
             float(cfg.prop_merge_fac), float(cfg.propagation_sigma), float(cap),
             ns.idepth, ns.idepth_var, ns.idepth_s, ns.var_s, ns.valid, ns.validity, ns.pos_x,
-            ns.pos_y, ns.ref_id, ns.blacklist)
+            ns.pos_y, ns.ref_id, ns.blacklist, ns.skip)
         k = cfg.blacklist_recovery_frames
         if k > 0 and self._iteration % k == 0:
             np.add(ns.blacklist, 1, out=ns.blacklist, where=ns.blacklist < 0)
@@ -360,10 +364,11 @@ class Mapper:
             scratch = int(cfg.max_epl_search + cfg.min_epl_search) + 16
             K.observe_kernel(cur.image, cur.gx, cur.gy, cur.maxgrad, self._buf_images, slots, ids,
                              Rs, ts, cs, res, s.idepth, s.idepth_var, s.idepth_s, s.var_s, s.valid,
-                             s.validity, s.pos_x, s.pos_y, s.ref_id, s.blacklist, fx, fy, cx, cy,
+                             s.validity, s.pos_x, s.pos_y, s.ref_id, s.blacklist, s.skip, fx, fy, cx, cy,
                              self._params, int(stride), int(self._iteration % stride), scratch,
                              status)
-        counts = np.bincount(status.ravel().astype(np.int64), minlength=7)
+        counts = np.bincount(status.ravel().astype(np.int64), minlength=9)
+        stats.no_epipolar, stats.skipped_converged = int(counts[7]), int(counts[8])
         stats.updated, stats.created, stats.inconsistent = int(counts[1]), int(counts[2]), int(counts[3])
         stats.failed, stats.no_reference, stats.removed_gradient = int(counts[4]), int(counts[5]), int(counts[6])
 
@@ -381,7 +386,7 @@ class Mapper:
         s, cfg, cur = self.state, self.config, self._cur
         new_flag = np.zeros_like(s.valid)
         K.fill_kernel(s.idepth, s.idepth_var, s.idepth_s, s.var_s, s.valid, s.validity, s.pos_x,
-                      s.pos_y, s.ref_id, s.blacklist, cur.maxgrad, float(cfg.min_grad),
+                      s.pos_y, s.ref_id, s.blacklist, s.skip, cur.maxgrad, float(cfg.min_grad),
                       int(cfg.min_blacklist), float(cfg.fill_validity_sum),
                       float(cfg.unblacklist_validity_sum), float(cfg.init_var),
                       float(cfg.fill_validity), new_flag)
