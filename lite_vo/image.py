@@ -10,7 +10,7 @@ Owns:
 * :func:`gradients` - half central differences ``gx = (I[x+1] - I[x-1]) / 2`` (0 on the border).
 * :func:`intensity_gradient_stack` - ``(H, W, 3)`` float32 ``[I, gx, gy]`` interleaved, the layout the
   tracking kernel samples bilinearly (one cache line per corner).
-* :func:`bspline_coefficient_stack` - cubic B-spline coefficients (same layout, channel 0), for
+* :func:`bspline_coefficient_stack` - cubic B-spline coefficients ((H, W, 1)), for
   bicubic-spline sampling in tracking (much less "pixel locking" than bilinear interpolation).
 * :func:`gaussian_blur` - separable Gaussian (mirror borders), the tracking images' anti-aliasing.
 * :func:`warmup` - compiles every kernel of this module on tiny inputs.
@@ -103,54 +103,96 @@ def _bspline_prefilter_line(c, n, horizon):
 
 @njit(cache=True, nogil=True, fastmath=False)
 def _bspline_coefficients(img, out, horizon):
+    """Cubic B-spline coefficients of ``img`` into ``out[:, :, 0]`` (rows, then columns; the column
+    recursion runs over whole rows at once so memory is read contiguously)."""
     h, w = img.shape
-    row = np.empty(w)
+    c = np.empty((h, w))
     for y in range(h):
         for x in range(w):
-            row[x] = img[y, x]
-        _bspline_prefilter_line(row, w, horizon)
+            c[y, x] = img[y, x]
+        _bspline_prefilter_line(c[y], w, horizon)
+    if h >= 2:
+        z = np.sqrt(3.0) - 2.0
+        for y in range(h):
+            for x in range(w):
+                c[y, x] *= 6.0
+        m = horizon if horizon < h else h
+        zn = z
+        for k in range(1, m):
+            for x in range(w):
+                c[0, x] += zn * c[k, x]
+            zn *= z
+        for y in range(1, h):
+            for x in range(w):
+                c[y, x] += z * c[y - 1, x]
+        f = z / (z * z - 1.0)
         for x in range(w):
-            out[y, x, 0] = row[x]
-    col = np.empty(h)
-    for x in range(w):
-        for y in range(h):
-            col[y] = out[y, x, 0]
-        _bspline_prefilter_line(col, h, horizon)
-        for y in range(h):
-            out[y, x, 0] = col[y]
-            out[y, x, 1] = 0.0
-            out[y, x, 2] = 0.0
+            c[h - 1, x] = f * (c[h - 1, x] + z * c[h - 2, x])
+        for y in range(h - 2, -1, -1):
+            for x in range(w):
+                c[y, x] = z * (c[y + 1, x] - c[y, x])
+    for y in range(h):
+        for x in range(w):
+            out[y, x, 0] = c[y, x]
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def _mirror(i, n):
+    if i < 0:
+        i = -i
+    if i >= n:
+        i = 2 * n - 2 - i
+    return min(max(i, 0), n - 1)
 
 
 @njit(cache=True, nogil=True, fastmath=False)
 def _blur_separable(img, kern, tmp, out):
-    """Separable convolution with the symmetric 1-D kernel ``kern`` (odd length), mirror borders."""
+    """Separable convolution with the symmetric 1-D kernel ``kern`` (odd length), mirror borders.
+
+    Interior loops are branch-free; the vertical pass runs along contiguous rows."""
     h, w = img.shape
     r = kern.shape[0] // 2
     for y in range(h):
-        for x in range(w):
+        row = img[y]
+        trow = tmp[y]
+        for x in range(min(r, w)):
             s = 0.0
             for k in range(-r, r + 1):
-                xx = x + k
-                if xx < 0:
-                    xx = -xx
-                elif xx >= w:
-                    xx = 2 * w - 2 - xx
-                xx = min(max(xx, 0), w - 1)
-                s += kern[k + r] * img[y, xx]
-            tmp[y, x] = s
+                s += kern[k + r] * row[_mirror(x + k, w)]
+            trow[x] = s
+        for x in range(r, w - r):
+            s = 0.0
+            for k in range(-r, r + 1):
+                s += kern[k + r] * row[x + k]
+            trow[x] = s
+        for x in range(max(w - r, r), w):
+            s = 0.0
+            for k in range(-r, r + 1):
+                s += kern[k + r] * row[_mirror(x + k, w)]
+            trow[x] = s
+    for y in range(h):
+        orow = out[y]
+        for x in range(w):
+            orow[x] = 0.0
+        for k in range(-r, r + 1):
+            src = tmp[_mirror(y + k, h)]
+            c = kern[k + r]
+            for x in range(w):
+                orow[x] += c * src[x]
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def _sanitize_idepth(d_in, v_in, m_in, d_out, v_out, m_out):
+    h, w = d_in.shape
+    nan = np.float32(np.nan)
     for y in range(h):
         for x in range(w):
-            s = 0.0
-            for k in range(-r, r + 1):
-                yy = y + k
-                if yy < 0:
-                    yy = -yy
-                elif yy >= h:
-                    yy = 2 * h - 2 - yy
-                yy = min(max(yy, 0), h - 1)
-                s += kern[k + r] * tmp[yy, x]
-            out[y, x] = s
+            d = d_in[y, x]
+            v = v_in[y, x]
+            ok = m_in[y, x] and d > 0 and v > 0 and d < np.inf and v < np.inf
+            m_out[y, x] = ok
+            d_out[y, x] = d if ok else nan
+            v_out[y, x] = v if ok else nan
 
 
 # --------------------------------------------------------------------------- wrappers
@@ -205,16 +247,14 @@ def downsample_idepth(idepth: np.ndarray, idepth_var: np.ndarray, valid: np.ndar
 
 def sanitize_idepth(idepth: np.ndarray, idepth_var: np.ndarray, valid: np.ndarray):
     """``(idepth, var, valid)`` float32/bool with ``valid &= finite & idepth > 0 & var > 0`` and NaN elsewhere."""
-    d = np.asarray(idepth, dtype=np.float32)
-    v = np.asarray(idepth_var, dtype=np.float32)
-    m = np.asarray(valid, dtype=bool)
+    d = np.ascontiguousarray(idepth, dtype=np.float32)
+    v = np.ascontiguousarray(idepth_var, dtype=np.float32)
+    m = np.ascontiguousarray(valid, dtype=np.bool_)
     if d.shape != v.shape or d.shape != m.shape or d.ndim != 2:
         raise ValueError(f"idepth {d.shape}, idepth_var {v.shape}, valid {m.shape} must be equal 2-D shapes")
-    with np.errstate(invalid="ignore"):
-        ok = m & np.isfinite(d) & np.isfinite(v) & (d > 0) & (v > 0)
-    d = np.where(ok, d, np.float32(np.nan)).astype(np.float32)
-    v = np.where(ok, v, np.float32(np.nan)).astype(np.float32)
-    return d, v, ok
+    od, ov, om = np.empty_like(d), np.empty_like(v), np.empty_like(m)
+    _sanitize_idepth(d, v, m, od, ov, om)
+    return od, ov, om
 
 
 def idepth_pyramid(idepth: np.ndarray, idepth_var: np.ndarray, valid: np.ndarray, levels: int):
@@ -247,13 +287,13 @@ def intensity_gradient_stack(img: np.ndarray, out: np.ndarray | None = None) -> 
 
 
 def bspline_coefficient_stack(img: np.ndarray, out: np.ndarray | None = None, precision: float = 1e-7) -> np.ndarray:
-    """``(H, W, 3)`` float32 whose channel 0 holds the cubic B-spline coefficients of ``img``
-    (mirror boundaries; interpolating: evaluating the spline at pixel centres gives ``img`` back),
-    channels 1, 2 zero. The layout of :func:`intensity_gradient_stack`, for the tracking kernel's
-    bicubic B-spline mode. ``precision`` sets where the boundary initialisation sum is truncated."""
+    """``(H, W, 1)`` float32 holding the cubic B-spline coefficients of ``img`` (mirror boundaries;
+    interpolating: evaluating the spline at pixel centres gives ``img`` back). Same array type as
+    :func:`intensity_gradient_stack` (3-D, channel 0 read), for the tracking kernel's B-spline mode.
+    ``precision`` sets where the boundary initialisation sum is truncated."""
     a = _as_image(img)
-    if out is None or out.shape != a.shape + (3,) or out.dtype != np.float32:
-        out = np.empty(a.shape + (3,), np.float32)
+    if out is None or out.shape != a.shape + (1,) or out.dtype != np.float32:
+        out = np.empty(a.shape + (1,), np.float32)
     horizon = int(np.ceil(np.log(precision) / np.log(2.0 - np.sqrt(3.0)))) + 1
     _bspline_coefficients(a, out, horizon)
     return out

@@ -330,3 +330,17 @@ def test_small_motion_both_interpolations(room_pair, interpolation):
     res = Tracker(cfg, INTR, LEVELS, TRACK_LEVEL).track(ref, image_pyramid(img1, LEVELS), np.eye(4))
     t_err, r_err = _pose_error(res.T_ref_new, T_ref_new)
     assert t_err < 1.5e-3 and r_err < 0.06, (t_err, r_err)
+
+
+def test_reference_min_level_skips_fine_levels():
+    rng = np.random.default_rng(12)
+    img = rng.uniform(0, 255, (240, 320)).astype(np.float32)
+    valid = rng.uniform(size=(240, 320)) < 0.3
+    pyr = image_pyramid(img, LEVELS)
+    full = TrackingReference.build(pyr, np.ones((240, 320)), np.full((240, 320), 1e-3), valid, INTR)
+    part = TrackingReference.build(pyr, np.ones((240, 320)), np.full((240, 320), 1e-3), valid, INTR, min_level=1)
+    assert part.num_points(0) == 0 and full.num_points(0) == valid.sum()
+    for lvl in range(1, LEVELS):
+        np.testing.assert_array_equal(part.levels[lvl].points, full.levels[lvl].points)
+    res = Tracker(TrackingConfig(), INTR, LEVELS, 0).track(part, pyr, np.eye(4))
+    assert res.lost and "min_level" in res.lost_reason

@@ -149,7 +149,8 @@ def run(args) -> dict:
         with np.errstate(divide="ignore"):
             idepth = np.where(valid, 1.0 / np.maximum(depth, 1e-6), 0.0).astype(np.float32)
         var = (args.idepth_var + args.idepth_var_rel * idepth ** 2).astype(np.float32)
-        ref = TrackingReference.build(pyr, idepth, var, valid, intr, k, smooth_sigma=cfg.tracking.smooth_sigma)
+        ref = TrackingReference.build(pyr, idepth, var, valid, intr, k, smooth_sigma=cfg.tracking.smooth_sigma,
+                                      min_level=res_cfg.track_level)
 
     est = Trajectory(np.array(stamps), np.array(poses))
     if args.out:

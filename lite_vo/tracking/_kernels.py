@@ -474,6 +474,27 @@ def lm_level(pts, img3, interp, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_i
         stats[ST_ERR] = np.nan
 
 
+@njit(cache=True, nogil=True, fastmath=False)
+def extract_points(valid, idepth, idepth_var, img, fx, fy, cx, cy, pts, xs, ys):
+    """Fill the packed point array (layout ``PTS_COLS``) and pixel coordinates of the valid pixels,
+    row-major order; returns the count (``pts`` must have room for every valid pixel)."""
+    h, w = valid.shape
+    n = 0
+    for y in range(h):
+        for x in range(w):
+            if valid[y, x]:
+                z = 1.0 / np.float64(idepth[y, x])
+                pts[n, 0] = (x - cx) / fx * z
+                pts[n, 1] = (y - cy) / fy * z
+                pts[n, 2] = z
+                pts[n, 3] = img[y, x]
+                pts[n, 4] = idepth_var[y, x]
+                xs[n] = x
+                ys[n] = y
+                n += 1
+    return n
+
+
 def warmup() -> None:
     """Compile (or load from the cache) every kernel of this module on tiny inputs."""
     rng = np.random.default_rng(0)
@@ -499,3 +520,7 @@ def warmup() -> None:
     solve6(np.eye(6), np.ones(6), x, 1e-12)
     E = np.empty((4, 4))
     exp_se3_nb(np.full(6, 0.1), E)
+    m = np.ones((4, 4), np.bool_)
+    one = np.ones((4, 4), np.float32)
+    extract_points(m, one, one, one, 4.0, 4.0, 1.5, 1.5, np.empty((16, PTS_COLS), np.float32),
+                   np.empty(16, np.float32), np.empty(16, np.float32))

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..camera import PinholeIntrinsics
 from ..image import gaussian_blur, idepth_pyramid
-from ._kernels import PTS_COLS
+from ._kernels import PTS_COLS, extract_points
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
@@ -88,7 +88,7 @@ class TrackingReference:
 
     @classmethod
     def build(cls, image_pyr, idepth, idepth_var, valid, intrinsics0: PinholeIntrinsics,
-              frame_id=0, smooth_sigma: float | None = None) -> "TrackingReference":
+              frame_id=0, smooth_sigma: float | None = None, min_level: int = 0) -> "TrackingReference":
         """Build from the reference image pyramid and its level-0 inverse-depth map.
 
         ``image_pyr``: list of float32 images (level 0 = mapping resolution, as from
@@ -98,6 +98,8 @@ class TrackingReference:
         ``smooth_sigma``: Gaussian blur of each level before its intensities are sampled (None: the
         ``TrackingConfig`` default; pass ``config.tracking.smooth_sigma`` when it is overridden). The
         tracker blurs new images with the reference's ``smooth_sigma``, so both always match.
+        ``min_level``: levels below it get no points (pass the profile's ``track_level``: the phone
+        profile never tracks on level 0, and skipping it halves the build time).
         """
         if smooth_sigma is None:
             from .config import TrackingConfig
@@ -120,18 +122,15 @@ class TrackingReference:
                 raise ValueError(f"image level {lvl} has shape {img.shape}, expected {ms[lvl].shape}")
             imgs.append(_ro(img))
             K = intrinsics0.level(lvl)
-            ys, xs = np.nonzero(ms[lvl])
-            d = ds[lvl][ys, xs].astype(np.float64)
-            z = 1.0 / d
-            pts = np.empty((xs.shape[0], PTS_COLS), np.float32)
-            pts[:, 0] = (xs - K.cx) / K.fx * z
-            pts[:, 1] = (ys - K.cy) / K.fy * z
-            pts[:, 2] = z
-            pts[:, 3] = (gaussian_blur(img, smooth_sigma) if smooth_sigma > 0 else img)[ys, xs]
-            pts[:, 4] = vs[lvl][ys, xs]
+            n = int(np.count_nonzero(ms[lvl])) if lvl >= min_level else 0
+            pts = np.empty((n, PTS_COLS), np.float32)
+            xs = np.empty(n, np.float32)
+            ys = np.empty(n, np.float32)
+            if n:
+                src = gaussian_blur(img, smooth_sigma) if smooth_sigma > 0 else img
+                extract_points(ms[lvl], ds[lvl], vs[lvl], src, K.fx, K.fy, K.cx, K.cy, pts, xs, ys)
             levels.append(ReferenceLevel(
-                lvl=lvl, intrinsics=K, x=_ro(xs.astype(np.float32)), y=_ro(ys.astype(np.float32)),
-                intensity=_ro(pts[:, 3].copy()), idepth=_ro(d.astype(np.float32)),
-                idepth_var=_ro(pts[:, 4].copy()), points=_ro(pts)))
+                lvl=lvl, intrinsics=K, x=_ro(xs), y=_ro(ys), intensity=_ro(pts[:, 3].copy()),
+                idepth=_ro(1.0 / pts[:, 2]), idepth_var=_ro(pts[:, 4].copy()), points=_ro(pts)))
         return cls(frame_id, intrinsics0, levels, imgs, [_ro(d) for d in ds], [_ro(v) for v in vs],
                    [_ro(m) for m in ms], smooth_sigma)

@@ -152,7 +152,8 @@ class Tracker:
         res = TrackingResult(T_ref_new=guess.copy(), lost=True, level_ms=level_ms, iterations=iterations,
                              affine=(float(aff[0]), float(aff[1])))
         if finest_acc is None or finest_status == 1:
-            res.lost_reason = "no points" if lv.num_points == 0 else "too few points inside the image"
+            res.lost_reason = ("no points (empty map, or reference built with min_level above the tracking level)"
+                               if lv.num_points == 0 else "too few points inside the image")
             res.points_used = 0 if finest_acc is None else int(finest_acc[K.ACC_N])
             res.inside_ratio = res.points_used / max(lv.num_pixels, 1)
             res.total_ms = (time.perf_counter() - t_start) * 1e3
