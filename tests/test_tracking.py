@@ -344,3 +344,22 @@ def test_reference_min_level_skips_fine_levels():
         np.testing.assert_array_equal(part.levels[lvl].points, full.levels[lvl].points)
     res = Tracker(TrackingConfig(), INTR, LEVELS, 0).track(part, pyr, np.eye(4))
     assert res.lost and "min_level" in res.lost_reason
+
+
+def test_depth_image_mask_drops_edges_flat_and_invalid():
+    from lite_vo.tracking import depth_image_mask
+    ys, xs = np.mgrid[0:40, 0:60].astype(np.float32)
+    img = (128 + 60 * np.sin(xs / 2.0)).astype(np.float32)
+    img[:, 50:] = 100.0                                   # textureless strip
+    depth = np.full((40, 60), 2.0, np.float32)
+    depth[:, 20:] = 1.0                                   # occlusion boundary at x = 20
+    depth[5, 5] = 0.0
+    depth[6, 6] = np.nan
+    cfg = TrackingConfig()
+    m = depth_image_mask(img, depth, cfg)
+    assert not m[:, 16:24].any()                          # within the 7x7 window of the step
+    assert m[10:30, 8:14].all() and m[10:30, 26:46].all()
+    assert not m[:, 52:].any()                            # no gradient
+    assert not m[5, 5] and not m[6, 6]
+    off = depth_image_mask(img, depth, dataclasses.replace(cfg, depth_image_max_step=0.0, depth_image_min_grad=0.0))
+    assert off.sum() == 40 * 60 - 2

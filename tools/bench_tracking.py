@@ -46,8 +46,6 @@ def main(argv=None) -> int:
     p.add_argument("sequence", nargs="?", default=str(DEFAULT_SEQ))
     p.add_argument("--profile", default="phone")
     p.add_argument("--set", action="append", metavar="section.key=value")
-    p.add_argument("--min-grad", type=float, default=5.0)
-    p.add_argument("--max-depth-step", type=float, default=0.08, help="depth-edge removal as in rgbd_odometry.py")
     p.add_argument("--max-frames", type=int, default=0)
     p.add_argument("--repeat", type=int, default=3, help="timed passes over the sequence")
     p.add_argument("--out-dir", default=str(ROOT / "benchmarks"))
@@ -61,8 +59,7 @@ def main(argv=None) -> int:
     from lite_vo.tracking import Tracker, TrackingReference
     from lite_vo.tracking import _kernels
 
-    sys.path.insert(0, str(ROOT / "tools"))
-    from rgbd_odometry import select_points
+    from lite_vo.tracking import depth_image_mask
 
     numba.set_num_threads(1)
     image_mod.warmup()
@@ -92,7 +89,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         pyr = image_pyramid(img, r.pyramid_levels)
         pyr_ms.append((time.perf_counter() - t0) * 1e3)
-        valid = select_points(pyr[0], depth, args.min_grad, args.max_depth_step, 7)
+        valid = depth_image_mask(pyr[0], depth, cfg.tracking)
         idepth = np.where(valid, 1.0 / np.maximum(depth, 1e-6), 0.0).astype(np.float32)
         t0 = time.perf_counter()
         ref = TrackingReference.build(pyr, idepth, np.full_like(idepth, 1e-4), valid, intr, k,

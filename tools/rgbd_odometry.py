@@ -8,8 +8,8 @@ RPE (1 s) against the sequence's ground truth, plus tracking time statistics.
     python tools/rgbd_odometry.py ../shared/data/icl_livingroom_211 --profile phone --out /tmp/icl.txt
     python tools/rgbd_odometry.py SEQ --set tracking.huber=2.0 --min-grad 5 --idepth-var 1e-4
 
-The reference map of a frame: pixels with valid depth whose gradient magnitude (3x3 max-filtered,
-half central differences) is at least ``--min-grad`` (0 = every pixel with depth), idepth = 1/depth,
+The reference map of a frame: :func:`lite_vo.tracking.depth_image_mask` (valid depth, gradient >=
+``tracking.depth_image_min_grad``, away from depth discontinuities), idepth = 1/depth,
 ``idepth_var = --idepth-var`` (+ ``--idepth-var-rel`` * idepth^2, a relative depth-noise model).
 """
 from __future__ import annotations
@@ -21,27 +21,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-
-def select_points(img: np.ndarray, depth_m: np.ndarray, min_grad: float, max_depth_step: float = 0.0,
-                  edge_window: int = 5) -> np.ndarray:
-    """Valid-depth pixels whose 3x3 max-filtered gradient magnitude is >= min_grad and, when
-    ``max_depth_step > 0``, whose ``edge_window`` neighbourhood spans less than ``max_depth_step * depth``
-    (drops occlusion boundaries, where one pixel's depth does not describe what the next frame sees)."""
-    import cv2
-    from lite_vo.image import gradients
-    valid = depth_m > 0
-    if max_depth_step > 0:
-        d = np.asarray(depth_m, np.float32)
-        kernel = np.ones((edge_window, edge_window), np.uint8)
-        dmax = cv2.dilate(d, kernel)
-        dmin = cv2.erode(np.where(d > 0, d, np.float32(1e9)).astype(np.float32), kernel)
-        valid &= (dmax - dmin) < max_depth_step * d
-    if min_grad > 0:
-        gx, gy = gradients(img)
-        g = cv2.dilate(np.hypot(gx, gy).astype(np.float32), np.ones((3, 3), np.uint8))
-        valid &= g >= min_grad
-    return valid
 
 
 def resample_depth(rect, depth_m: np.ndarray, mode: str) -> np.ndarray:
@@ -95,9 +74,16 @@ def run(args) -> dict:
     from lite_vo.eval import evaluate
     from lite_vo.image import image_pyramid
     from lite_vo.io import Trajectory, write_trajectory
-    from lite_vo.tracking import Tracker, TrackingReference
+    from lite_vo.tracking import Tracker, TrackingReference, depth_image_mask
 
-    cfg = lite_vo.load_profile(args.profile, args.set or ())
+    overrides = list(args.set or ())
+    if args.min_grad is not None:
+        overrides.append(f"tracking.depth_image_min_grad={args.min_grad}")
+    if args.max_depth_step is not None:
+        overrides.append(f"tracking.depth_image_max_step={args.max_depth_step}")
+    if args.edge_window is not None:
+        overrides.append(f"tracking.depth_image_edge_window={args.edge_window}")
+    cfg = lite_vo.load_profile(args.profile, overrides)
     res_cfg = cfg.resolution
     seq = lite_vo.open_sequence(args.sequence)
     rect = seq.camera.rectifier(res_cfg.map_width)
@@ -145,7 +131,7 @@ def run(args) -> dict:
             T_world = T_world @ res.T_ref_new
             stamps.append(ts)
             poses.append(T_world.copy())
-        valid = select_points(pyr[0], depth, args.min_grad, args.max_depth_step, args.edge_window)
+        valid = depth_image_mask(pyr[0], depth, cfg.tracking)
         with np.errstate(divide="ignore"):
             idepth = np.where(valid, 1.0 / np.maximum(depth, 1e-6), 0.0).astype(np.float32)
         var = (args.idepth_var + args.idepth_var_rel * idepth ** 2).astype(np.float32)
@@ -181,10 +167,10 @@ def main(argv=None) -> int:
     p.add_argument("--set", action="append", metavar="section.key=value", help="config override (repeatable)")
     p.add_argument("--out", help="TUM trajectory output file")
     p.add_argument("--max-frames", type=int, default=0)
-    p.add_argument("--min-grad", type=float, default=5.0, help="reference pixel selection (0 = all with depth)")
-    p.add_argument("--max-depth-step", type=float, default=0.08,
+    p.add_argument("--min-grad", type=float, default=None, help="reference pixel selection (0 = all with depth)")
+    p.add_argument("--max-depth-step", type=float, default=None,
                    help="drop pixels whose neighbourhood depth range exceeds this fraction of their depth (0 = off)")
-    p.add_argument("--edge-window", type=int, default=7, help="neighbourhood size of the depth-step test")
+    p.add_argument("--edge-window", type=int, default=None, help="neighbourhood size of the depth-step test")
     p.add_argument("--idepth-var", type=float, default=1e-4, help="constant idepth variance of depth pixels")
     p.add_argument("--idepth-var-rel", type=float, default=0.0, help="extra idepth variance per idepth^2")
     p.add_argument("--pre-blur", type=float, default=0.0, help="Gaussian blur (sigma, px) of the mapping-resolution image")

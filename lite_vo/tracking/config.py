@@ -26,6 +26,11 @@ class TrackingConfig:
     min_inside_ratio: float = param(0.01, "lost when fewer than this share of the level's pixels warp into the image", 0.0, 1.0)
     affine_brightness: bool = param(False, "estimate an affine brightness change a*I+b per frame")
     affine_huber: float = param(5.0, "robust threshold (grey levels) for the brightness estimate", 0.1, 255.0)
+    depth_image_min_grad: float = param(5.0, "depth-image tracking: use pixels whose 3x3 max gradient is at least this (0 = all)",
+                                        0.0, 255.0)
+    depth_image_max_step: float = param(0.08, "depth-image tracking: drop pixels whose neighbourhood depth range exceeds "
+                                        "this fraction of their depth (occlusion boundaries; 0 = keep)", 0.0, 10.0)
+    depth_image_edge_window: int = param(7, "depth-image tracking: neighbourhood size (px) of the depth-step test", 1, 31)
     constant_velocity: bool = param(False, "initial guess from constant velocity instead of the last pose")
     lm_lambda_accept_max: float = param(0.2, "after an accepted step lambda becomes 0 if it was at most this", 0.0, 100.0)
     lm_lambda_accept_factor: float = param(0.5, "after an accepted step a larger lambda is multiplied by this", 0.0, 1.0)
