@@ -582,3 +582,20 @@ def test_input_errors(tex):
 
 def test_warmup_runs():
     K.warmup()
+
+
+def test_reference_buffer_is_bounded_and_ordered(tex):
+    frames = _plane_frames(tex, 9, K_SMALL)
+    m = Mapper(dataclasses.replace(MappingConfig(), buffer_size=3), K_SMALL)
+    m.initialize_random(frames[0][0])
+    m.add_reference(frames[0][0])                    # the current frame is not its own reference
+    assert m.update(frames[0][0]).references == 0
+    for i in range(1, 9):
+        if i % 2:
+            m.add_reference(frames[i][0])            # tracked but not mapped
+        else:
+            st = m.update(frames[i][0])
+            assert st.references <= 3
+    ids = [f.frame_id for f, _ in m._buffer]
+    assert ids == sorted(ids) and len(ids) == 3 and 8 not in ids
+    assert len({slot for _, slot in m._buffer}) == 3
