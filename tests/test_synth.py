@@ -326,6 +326,17 @@ def test_accelerometer_noise_is_seeded(tmp_path):
     assert 0.03 < np.std(acc - exact) < 0.07
 
 
+def test_accelerometer_at_its_own_rate(tmp_path):
+    out = tmp_path / "imu"
+    generate_sequence(out, "room", "handheld", n_frames=7, seed=2, width=32, height=24,
+                      config=SynthConfig(accel_rate_hz=200.0))
+    acc = np.array(_read_table(out / "accelerometer.txt"), float)
+    assert len(acc) == 41  # 0 .. 0.2 s at 200 Hz
+    np.testing.assert_allclose(np.diff(acc[:, 0]), 0.005, atol=2e-6)
+    exact = make_motion("handheld", "room", 2).specific_force_cam(np.arange(41) / 200.0)
+    np.testing.assert_allclose(acc[:, 1:], exact, atol=1e-8)
+
+
 def _rates(P, fps=30.0):
     v = np.linalg.norm(np.diff(P[:, :3, 3], axis=0), axis=1) * fps
     dR = np.einsum("nji,njk->nik", P[:-1, :3, :3], P[1:, :3, :3])

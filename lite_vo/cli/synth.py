@@ -43,6 +43,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="smooth global exposure changes (per-frame gain and offset)")
     p.add_argument("--accel-noise", type=float, default=0.0, metavar="STD",
                    help="accelerometer white noise std in m/s^2 (default 0)")
+    p.add_argument("--accel-rate", type=float, default=0.0, metavar="HZ",
+                   help="accelerometer sample rate (default 0: one sample per frame)")
     p.add_argument("--force", action="store_true", help="write into a non-empty folder")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     return p
@@ -61,7 +63,9 @@ def run(args) -> int:
         raise InputError(f"--accel-noise must be >= 0, got {args.accel_noise}")
     if args.width < 16 or args.height < 16:
         raise InputError(f"--width/--height must be >= 16, got {args.width}x{args.height}")
-    cfg = SynthConfig(accel_noise_std=args.accel_noise)
+    if args.accel_rate < 0:
+        raise InputError(f"--accel-rate must be >= 0, got {args.accel_rate}")
+    cfg = SynthConfig(accel_noise_std=args.accel_noise, accel_rate_hz=args.accel_rate)
     t0 = time.perf_counter()
 
     def progress(i, n):

@@ -34,6 +34,8 @@ class SynthConfig:
     exposure_period_s: float = param(7.0, "exposure changes: base period of the gain/offset "
                                      "sinusoids (seconds)", 0.5, 1000.0)
     accel_noise_std: float = param(0.0, "white noise std of the accelerometer (m/s^2)", 0.0, 10.0)
+    accel_rate_hz: float = param(0.0, "accelerometer.txt sample rate (Hz) over the frames' time "
+                                 "span; 0: one sample at each frame timestamp", 0.0, 2000.0)
     depth_scale: float = param(5000.0, "depth PNG units per metre (TUM: 5000)", 1.0, 1e5)
     start_time_s: float = param(0.0, "timestamp of the first frame (seconds)", 0.0, 1e10)
     png_compression: int = param(1, "cv2 PNG compression level (0 fastest .. 9 smallest)", 0, 9)

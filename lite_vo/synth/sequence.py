@@ -210,6 +210,16 @@ def generate_sequence(out_dir, scene: str = "room", trajectory: str = "handheld"
     def text(name, header, lines):
         (out / name).write_text("\n".join([f"# {header}", f"# file: '{label}'"] + lines) + "\n")
 
+    if cfg.accel_rate_hz > 0:  # accelerometer at its own rate (exact motion, own noise stream)
+        motion = make_motion(trajectory, scene, seed)
+        n_acc = int(np.floor((int(n_frames) - 1) / float(fps) * cfg.accel_rate_hz + 1e-9)) + 1
+        t_acc = np.arange(n_acc) / cfg.accel_rate_hz
+        acc = motion.specific_force_cam(t_acc, sc.gravity_world)
+        if cfg.accel_noise_std > 0:
+            acc = acc + np.random.default_rng([int(seed), 4243]).normal(
+                0.0, cfg.accel_noise_std, acc.shape)
+        acc_lines = [f"{cfg.start_time_s + ta:.6f} " + " ".join(f"{x:.9f}" for x in a)
+                     for ta, a in zip(t_acc, acc)]
     text("rgb.txt", "color images (grey)\n# timestamp filename", rgb_lines)
     text("depth.txt", f"depth images (uint16, {cfg.depth_scale:g} per metre)\n# timestamp filename",
          depth_lines)
