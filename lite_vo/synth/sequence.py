@@ -164,12 +164,13 @@ def generate_sequence(out_dir, scene: str = "room", trajectory: str = "handheld"
     K = default_intrinsics(width, height, cfg)
     frames = iter_frames(scene, trajectory, n_frames, seed, width, height, noise_sigma, blur,
                          exposure, fps, cfg)
+    t0 = time.perf_counter()
     first = next(frames)  # validates the arguments before anything is written
+    render_s = time.perf_counter() - t0
     _prepare_out_dir(out, force)
     label = f"lite_vo synth scene={scene} trajectory={trajectory} seed={seed}"
     png = [cv2.IMWRITE_PNG_COMPRESSION, int(cfg.png_compression)]
     rgb_lines, depth_lines, gt_lines, acc_lines, exp_lines = [], [], [], [], []
-    render_s = 0.0
     pending = []
 
     def write(path, arr):
@@ -177,16 +178,9 @@ def generate_sequence(out_dir, scene: str = "room", trajectory: str = "handheld"
             raise InputError(f"{path}: cannot write image")
 
     with ThreadPoolExecutor(max_workers=1) as pool:
-        it = iter([first])
+        fr = first
         i = 0
-        while True:
-            t0 = time.perf_counter()
-            fr = next(it, None)
-            if fr is None:
-                fr = next(frames, None)
-            render_s += time.perf_counter() - t0
-            if fr is None:
-                break
+        while fr is not None:
             ts = f"{fr.timestamp:.6f}"
             img8 = np.clip(np.rint(fr.image), 0, 255).astype(np.uint8)
             d = np.rint(fr.depth.astype(np.float64) * cfg.depth_scale)
@@ -204,6 +198,9 @@ def generate_sequence(out_dir, scene: str = "room", trajectory: str = "handheld"
             i += 1
             if progress is not None:
                 progress(i, int(n_frames))
+            t0 = time.perf_counter()
+            fr = next(frames, None)
+            render_s += time.perf_counter() - t0
         for p in pending:
             p.result()
 
