@@ -357,8 +357,8 @@ def test_depth_image_mask_drops_edges_flat_and_invalid():
     depth[6, 6] = np.nan
     cfg = TrackingConfig()
     m = depth_image_mask(img, depth, cfg)
-    assert not m[:, 17:23].any()                          # within the 7x7 window of the step
-    assert m[10:30, 8:14].all() and m[10:30, 26:46].all()
+    assert not m[:, 16:24].any()                          # within the 9x9 window of the step
+    assert m[10:30, 8:14].all() and m[10:30, 26:45].all()
     assert not m[:, 52:].any()                            # no gradient
     assert not m[5, 5] and not m[6, 6]
     off = depth_image_mask(img, depth, dataclasses.replace(cfg, depth_image_max_step=0.0, depth_image_min_grad=0.0))

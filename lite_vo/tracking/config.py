@@ -30,7 +30,7 @@ class TrackingConfig:
                                         0.0, 255.0)
     depth_image_max_step: float = param(0.08, "depth-image tracking: drop pixels whose neighbourhood depth range exceeds "
                                         "this fraction of their depth (occlusion boundaries; 0 = keep)", 0.0, 10.0)
-    depth_image_edge_window: int = param(7, "depth-image tracking: neighbourhood size (px) of the depth-step test", 1, 31)
+    depth_image_edge_window: int = param(9, "depth-image tracking: neighbourhood size (px) of the depth-step test", 1, 31)
     constant_velocity: bool = param(False, "initial guess from constant velocity instead of the last pose")
     lm_lambda_accept_max: float = param(0.2, "after an accepted step lambda becomes 0 if it was at most this", 0.0, 100.0)
     lm_lambda_accept_factor: float = param(0.5, "after an accepted step a larger lambda is multiplied by this", 0.0, 1.0)
