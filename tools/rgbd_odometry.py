@@ -98,14 +98,6 @@ def run(args) -> dict:
         if fr.depth is None:
             raise SystemExit(f"{args.sequence}: frame {fr.index} has no depth image")
         img = rect(fr.image)
-        if args.pre_blur > 0:
-            import cv2
-            img = cv2.GaussianBlur(img, (0, 0), args.pre_blur)
-        if args.depth_is_range:
-            ni = seq.camera.intrinsics
-            ys, xs = np.mgrid[0:fr.depth.shape[0], 0:fr.depth.shape[1]]
-            fr_depth = fr.depth / np.sqrt(1 + ((xs - ni.cx) / ni.fx) ** 2 + ((ys - ni.cy) / ni.fy) ** 2)
-            fr = type(fr)(fr.index, fr.timestamp, fr.image, fr_depth.astype(np.float32))
         frames.append((fr.timestamp, image_pyramid(img, levels), resample_depth(rect, fr.depth, args.depth_resample)))
 
     gt = seq.groundtruth
@@ -173,12 +165,9 @@ def main(argv=None) -> int:
     p.add_argument("--edge-window", type=int, default=None, help="neighbourhood size of the depth-step test")
     p.add_argument("--idepth-var", type=float, default=1e-4, help="constant idepth variance of depth pixels")
     p.add_argument("--idepth-var-rel", type=float, default=0.0, help="extra idepth variance per idepth^2")
-    p.add_argument("--pre-blur", type=float, default=0.0, help="Gaussian blur (sigma, px) of the mapping-resolution image")
     p.add_argument("--constant-velocity", action="store_true", help="initial guess = last relative motion")
     p.add_argument("--depth-resample", choices=("rect", "average"), default="rect",
                    help="depth at mapping resolution: the rectifier's nearest-valid sample, or the block average")
-    p.add_argument("--depth-is-range", action="store_true",
-                   help="the depth images hold the distance to the camera centre, not z (converted here)")
     p.add_argument("--gt-seams", type=float, nargs="*", default=None,
                    help="also report RPE skipping 1-s pairs across these ground-truth times (s), e.g. ICL's pseudo-GT "
                         "fragment boundaries 3.3333 6.6667")
