@@ -363,3 +363,18 @@ def test_depth_image_mask_drops_edges_flat_and_invalid():
     assert not m[5, 5] and not m[6, 6]
     off = depth_image_mask(img, depth, dataclasses.replace(cfg, depth_image_max_step=0.0, depth_image_min_grad=0.0))
     assert off.sum() == 40 * 60 - 2
+
+
+def test_non_rigid_guess_is_projected_and_result_is_rigid(room_pair):
+    room, ref = room_pair
+    T_ref_new = exp_se3(np.array([0.01, 0.0, 0.005, 0.0, 0.01, 0.0]))
+    img1, _ = room.render(T_ref_new, INTR, supersample=2)
+    guess = np.eye(4)
+    guess[:3, :3] *= 1.01                                   # drifted, non-orthonormal composition
+    guess[0, 1] = 0.003
+    res = Tracker(TrackingConfig(), INTR, LEVELS, TRACK_LEVEL).track(ref, image_pyramid(img1, LEVELS), guess)
+    R = res.T_ref_new[:3, :3]
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    np.testing.assert_array_equal(res.T_ref_new[3], [0, 0, 0, 1])
+    t_err, r_err = _pose_error(res.T_ref_new, T_ref_new)
+    assert t_err < 1.5e-3 and r_err < 0.06
