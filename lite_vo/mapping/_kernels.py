@@ -69,7 +69,7 @@ TOO_LONG = -5          # full search line longer than max_epl: try a newer refer
 NO_EPL = -6            # (observe only) epipolar line too short or gradient along it too weak
 
 
-@njit(cache=True, nogil=True, fastmath=False, inline="always")
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
 def _bilinear(img, x, y):
     """Bilinear sample; the caller guarantees 0 <= x < W-1 and 0 <= y < H-1."""
     ix = int(x)
@@ -80,7 +80,7 @@ def _bilinear(img, x, y):
             + (1.0 - dx) * dy * img[iy + 1, ix] + dx * dy * img[iy + 1, ix + 1])
 
 
-@njit(cache=True, nogil=True, fastmath=False, parallel=True)
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
 def gradients_kernel(img, gx, gy, maxgrad):
     """Half central differences (0 on the 1-pixel border) and the 3x3 max filter of |g|."""
     h, w = img.shape
@@ -106,7 +106,7 @@ def gradients_kernel(img, gx, gy, maxgrad):
             maxgrad[y, x] = m
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def epipolar_direction(cur, x, y, px, py, c, fx, fy, cx, cy, prm):
     """Epipolar direction at pixel (x, y) (sub-pixel position (px, py)) for a reference whose
     centre is ``c`` in current-camera coordinates. Returns (ok, epx_unit, epy_unit)."""
@@ -129,7 +129,7 @@ def epipolar_direction(cur, x, y, px, py, c, fx, fy, cx, cy, prm):
     return True, epx / n, epy / n
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def line_length(u, v, min_id, max_id, R, t, fx, fy, cx, cy):
     """Length in pixels of the epipolar segment of inverse depths [min_id, max_id] (inf if unusable)."""
     rx = (u - cx) / fx
@@ -149,7 +149,7 @@ def line_length(u, v, min_id, max_id, R, t, fx, fy, cx, cy):
     return n if math.isfinite(n) else np.inf
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, fy, cx, cy,
                 gxi, gyi, track_residual, prm, allow_long, samples, ssd):
     """Search the epipolar line of current pixel (u, v) in ``ref``.
@@ -341,7 +341,7 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     return OK, idepth, var, epl_length, err
 
 
-@njit(cache=True, nogil=True, fastmath=False, parallel=True)
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
 def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c,
                    ref_residual, idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x,
                    pos_y, ref_id, blacklist, skip, fx, fy, cx, cy, prm, stride, offset, scratch_len,
@@ -484,7 +484,7 @@ def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, 
             status[y, x] = 1
 
 
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id, skip, img_old,
                      img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, min_grad, diff_const2,
                      diff_grad_mult, merge_fac, var_add, validity_cap,
@@ -581,7 +581,7 @@ def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id
     return kept, n_border, n_int, n_occ, n_fused
 
 
-@njit(cache=True, nogil=True, fastmath=False, parallel=True)
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
 def regularize_kernel(idepth, idepth_var, valid, validity, blacklist, radius, dist_var, diff_fac,
                       validity_th, o_idepth_s, o_var_s, o_valid):
     """Inverse-variance weighted, edge-preserving smoothing of the valid hypotheses.
@@ -627,7 +627,7 @@ def regularize_kernel(idepth, idepth_var, valid, validity, blacklist, radius, di
             o_var_s[y, x] = vmin
 
 
-@njit(cache=True, nogil=True, fastmath=False, parallel=True)
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
 def fill_kernel(idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist, skip,
                 maxgrad, min_grad, min_blacklist, create_th, unblacklist_th, new_var, new_validity,
                 new_flag):
