@@ -106,7 +106,7 @@ def gradients_kernel(img, gx, gy, maxgrad):
             maxgrad[y, x] = m
 
 
-@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
 def epipolar_direction(cur, x, y, px, py, c, fx, fy, cx, cy, prm):
     """Epipolar direction at pixel (x, y) (sub-pixel position (px, py)) for a reference whose
     centre is ``c`` in current-camera coordinates. Returns (ok, epx_unit, epy_unit)."""
@@ -129,7 +129,7 @@ def epipolar_direction(cur, x, y, px, py, c, fx, fy, cx, cy, prm):
     return True, epx / n, epy / n
 
 
-@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
 def line_length(u, v, min_id, max_id, R, t, fx, fy, cx, cy):
     """Length in pixels of the epipolar segment of inverse depths [min_id, max_id] (inf if unusable)."""
     rx = (u - cx) / fx
@@ -149,7 +149,7 @@ def line_length(u, v, min_id, max_id, R, t, fx, fy, cx, cy):
     return n if math.isfinite(n) else np.inf
 
 
-@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
 def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, fy, cx, cy,
                 gxi, gyi, track_residual, prm, allow_long, samples, ssd):
     """Search the epipolar line of current pixel (u, v) in ``ref``.
