@@ -509,8 +509,15 @@ class VisualOdometry:
         from .mapping import depth_accuracy
         if idepth is None:
             idepth, _, valid = self._mapper.current()
+        scale = 1.0
+        if not (self.metric or self.pose_source == "given"):
+            # monocular map: arbitrary scale, align it per frame (median ratio) before comparing
+            both = valid & (frame.depth_m > 0) & (idepth > 0)
+            if both.any():
+                scale = float(np.median(frame.depth_m[both] * idepth[both]))
+                idepth = idepth / scale
         acc = depth_accuracy(idepth, valid, frame.depth_m)
-        acc = {"frame": frame.index, "t": frame.timestamp - self._t0, **acc}
+        acc = {"frame": frame.index, "t": frame.timestamp - self._t0, "scale": scale, **acc}
         self.depth_accuracy_series.append(acc)
 
 
