@@ -158,7 +158,10 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     gl = gxi * epxn + gyi * epyn + 1e-10
     geo = e * e * (gxi ** 2 + gyi ** 2) / gl ** 2
     c = prm[K.P_SUBPIX_VAR] if sub else prm[K.P_NOSUBPIX_VAR]
-    return K.OK, idepth, alpha ** 2 * (c + geo + photo), length, err
+    var = alpha ** 2 * (c + geo + photo)
+    if not (var > 0 and math.isfinite(var)):
+        return K.NUMERIC, 0.0, 0.0, length, err
+    return K.OK, idepth, var, length, err
 
 
 def line_length(u, v, min_id, max_id, R, t, fx, fy, cx, cy):

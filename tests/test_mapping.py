@@ -599,3 +599,14 @@ def test_reference_buffer_is_bounded_and_ordered(tex):
     ids = [f.frame_id for f, _ in m._buffer]
     assert ids == sorted(ids) and len(ids) == 3 and 8 not in ids
     assert len({slot for _, slot in m._buffer}) == 3
+
+
+def test_nan_tracking_residual_does_not_poison_the_map(tex):
+    frames = _plane_frames(tex, 4, K_SMALL)
+    m = Mapper(MappingConfig(), K_SMALL)
+    m.initialize_from_depth(frames[0][0], frames[0][1])
+    for f, _ in frames[1:]:
+        m.update(MapFrame(f.frame_id, f.timestamp, f.image, f.T_world_cam, float("nan")))
+    idp, var, valid = m.current()
+    assert valid.sum() > 100
+    assert np.all(np.isfinite(idp[valid])) and np.all(np.isfinite(var[valid])) and np.all(var[valid] > 0)

@@ -338,6 +338,8 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     geo = e * e * (gxi * gxi + gyi * gyi) / (gdot * gdot)
     c = prm[P_SUBPIX_VAR] if did_subpixel else prm[P_NOSUBPIX_VAR]
     var = alpha * alpha * (c + geo + photo)
+    if not (var > 0.0 and math.isfinite(var)):
+        return NUMERIC, 0.0, 0.0, epl_length, err
     return OK, idepth, var, epl_length, err
 
 

@@ -334,7 +334,8 @@ class Mapper:
             Rs[i] = T_ref_cur[:3, :3]
             ts[i] = T_ref_cur[:3, 3]
             cs[i] = -T_ref_cur[:3, :3].T @ T_ref_cur[:3, 3]      # reference centre in the current frame
-            res[i] = f.tracking_residual
+            r = float(f.tracking_residual)
+            res[i] = r if np.isfinite(r) and r >= 0 else 0.0   # unknown residual: no extra geometric error
         return slots, ids, Rs, ts, cs, res
 
     def _budget_stride(self, n_cand: int) -> int:
