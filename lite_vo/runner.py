@@ -144,6 +144,53 @@ def plot_depth_error(series: list[dict], path: Path, title: str) -> bool:
     return True
 
 
+def _prefetch(seq, start_frame: int, max_frames: int | None, depth: int = 4):
+    """Frames ``start_frame ..`` of ``seq`` decoded ahead in a reader thread (a camera driver's job).
+
+    Order is unchanged, so sync runs stay deterministic; an exception in the reader is re-raised
+    in the caller.
+    """
+    import itertools
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    end = object()
+
+    def reader():
+        try:
+            if start_frame > 0 and hasattr(seq, "frame"):  # random access: skip without decoding
+                source = (seq.frame(i) for i in range(start_frame, len(seq)))
+            else:
+                source = itertools.islice(seq, start_frame, None)
+            for n, fr in enumerate(source):
+                if stop.is_set() or (max_frames is not None and n >= max_frames):
+                    break
+                q.put(fr)
+            q.put(end)
+        except BaseException as err:  # handed to the consumer
+            q.put(err)
+
+    t = threading.Thread(target=reader, name="lite_vo-reader", daemon=True)
+    t.start()
+    try:
+        while True:
+            item = q.get()
+            if item is end:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        while t.is_alive():
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                t.join(0.05)
+
+
 def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, force: bool = False,
                  depth_source: str = "filter", pose_source: str = "estimate", max_frames: int | None = None,
                  start_frame: int = 0, quiet: bool = True, sinks=(), profile_name: str | None = None) -> RunResult:
@@ -184,11 +231,7 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
     status = "ok"
     try:
         last_ts = None
-        for i, fr in enumerate(seq):
-            if i < start_frame:
-                continue
-            if max_frames is not None and done >= max_frames:
-                break
+        for fr in _prefetch(seq, start_frame, max_frames):
             done += 1
             if realtime:
                 if t_first is None:
