@@ -195,19 +195,10 @@ class RunOutcome:
 def build_run_command(spec: RunSpec) -> list[str]:
     """The ``lite-vo run`` command line for ``spec`` (``sys.executable -m lite_vo.cli.main``).
 
-    Initialisation-study runs (``kind="init"``) use ``python -m lite_vo.profiler init-run``: the
-    same ``lite_vo.runner.run_sequence`` with the same flags and output files, plus a sink that
-    records the depth error after choosing the optimal scale (:func:`init_run_main`).
+    Initialisation-study runs add ``--init random --start-frame S --set system.seed=K``; their
+    ``depth_accuracy.json`` holds the depth error after choosing the optimal scale per frame (the
+    system aligns non-metric maps by the median ratio).
     """
-    if spec.kind == "init":
-        cmd = [sys.executable, "-m", "lite_vo.profiler", "init-run", str(spec.sequence),
-               "--profile", str(spec.profile), "--out", str(spec.out_dir),
-               "--start-frame", str(int(spec.start_frame or 0)), "--seed", str(int(spec.seed or 0))]
-        if spec.max_frames is not None:
-            cmd += ["--max-frames", str(int(spec.max_frames))]
-        for ov in list(spec.overrides) + (["system.numba_threads=1"] if spec.pin_core else []):
-            cmd += ["--set", ov]
-        return cmd
     cmd = [sys.executable, "-m", "lite_vo.cli.main", "run", str(spec.sequence),
            "--profile", str(spec.profile), "--out", str(spec.out_dir), "--quiet", "--mode", "sync"]
     if spec.init is not None:
@@ -1109,89 +1100,3 @@ def run_profile(settings: ProfileSettings, runner: Runner | None = None, evaluat
     paths = profiler_report.write_report(report, out, plots=s.plots, log=log)
     report["written"] = [str(p) for p in paths]
     return report
-
-
-# ----------------------------------------------------------------------------------------------
-# Initialisation-study child process: lite-vo run + scale-aligned depth error per mapped frame
-# ----------------------------------------------------------------------------------------------
-
-def aligned_depth_error(idepth: np.ndarray, depth_gt_m: np.ndarray) -> dict:
-    """Median relative depth error after choosing the optimal (median-ratio) scale.
-
-    ``scale = median(gt * idepth)`` over pixels with a hypothesis and a valid ground truth; the
-    error is ``median(|scale / idepth - gt| / gt)`` (thesis Fig. 5.8: "relative deviation from the
-    ground truth depth, after choosing the optimal scale"). NaN when nothing can be compared.
-    """
-    idepth = np.asarray(idepth, float)
-    gt = np.asarray(depth_gt_m, float)
-    m = np.isfinite(idepth) & (idepth > 0) & np.isfinite(gt) & (gt > 0)
-    if not m.any():
-        return {"median_abs_rel_error_aligned": float("nan"), "scale": float("nan"), "compared": 0}
-    d = 1.0 / idepth[m]
-    scale = float(np.median(gt[m] / d))
-    rel = np.abs(scale * d - gt[m]) / gt[m]
-    return {"median_abs_rel_error_aligned": float(np.median(rel)), "scale": scale, "compared": int(m.sum()),
-            "median_abs_rel_error": float(np.median(np.abs(d - gt[m]) / gt[m]))}
-
-
-def init_run_main(argv: Sequence[str] | None = None) -> int:
-    """``python -m lite_vo.profiler init-run SEQ ...``: one random-initialisation run.
-
-    Writes the ``lite-vo run`` files through ``lite_vo.runner.run_sequence`` and, beside them,
-    ``depth_accuracy.json`` entries extended with ``median_abs_rel_error_aligned`` (computed by a
-    sink from every published map and the frame's depth image at the mapping resolution).
-    """
-    import argparse
-
-    from .config import load_profile
-    from .io import open_sequence
-    from .runner import run_sequence
-    from .system import OutputSink
-
-    ap = argparse.ArgumentParser(prog="python -m lite_vo.profiler init-run")
-    ap.add_argument("sequence")
-    ap.add_argument("--profile", default="phone")
-    ap.add_argument("--out", required=True)
-    ap.add_argument("--start-frame", type=int, default=0)
-    ap.add_argument("--max-frames", type=int, default=None)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--set", dest="overrides", action="append", default=[])
-    a = ap.parse_args(argv)
-    cfg = load_profile(a.profile, ['system.mode="sync"', 'system.init="random"', f"system.seed={a.seed}",
-                                   *a.overrides])
-    seq = open_sequence(a.sequence)
-    res = cfg.resolution
-    rect = seq.camera.rectifier(res.map_width, multiple_of=2 ** (res.pyramid_levels - 1))
-    stamps = frame_timestamps(a.sequence)
-    series: list[dict] = []
-    t0 = [None]
-
-    class AlignedDepthSink(OutputSink):
-        def on_map(self, frame_id, timestamp, T_world_cam, idepth, idepth_var, intrinsics):
-            if not seq.has_depth or not hasattr(seq, "frame"):
-                return
-            if t0[0] is None:
-                t0[0] = float(stamps[a.start_frame]) if len(stamps) > a.start_frame else float(timestamp)
-            i = int(np.argmin(np.abs(stamps - timestamp)))
-            fr = seq.frame(i)
-            if fr.depth is None:
-                return
-            gt = rect.depth(fr.depth)
-            if gt.shape != idepth.shape:
-                return
-            series.append({"frame": int(frame_id), "t": float(timestamp) - t0[0],
-                           **aligned_depth_error(idepth, gt)})
-
-    run_sequence(seq, cfg, Path(a.out), start_frame=a.start_frame, max_frames=a.max_frames, quiet=True,
-                 sinks=[AlignedDepthSink()], profile_name=a.profile)
-    clean = [{k: (v if not (isinstance(v, float) and not math.isfinite(v)) else None) for k, v in x.items()}
-             for x in series]
-    (Path(a.out) / "depth_accuracy.json").write_text(json.dumps(clean, indent=1), encoding="utf-8")
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover - child process of the initialisation study
-    if sys.argv[1:2] == ["init-run"]:
-        sys.exit(init_run_main(sys.argv[2:]))
-    print("usage: python -m lite_vo.profiler init-run SEQUENCE [options]", file=sys.stderr)
-    sys.exit(2)

@@ -483,21 +483,6 @@ def test_warmup_cli_prints_each_module_and_fails_on_errors(tmp_path, monkeypatch
     assert "kernel broke" in capsys.readouterr().err
 
 
-def test_aligned_depth_error_removes_the_scale():
-    rng = np.random.default_rng(5)
-    gt = rng.uniform(0.5, 4.0, (12, 16))
-    idepth = 1.0 / (gt * 0.25)  # map at a quarter of the metric scale
-    gt[0, :4] = 0.0  # invalid ground truth
-    idepth[1, :3] = np.nan  # no hypothesis
-    r = P.aligned_depth_error(idepth, gt)
-    assert r["median_abs_rel_error_aligned"] == pytest.approx(0.0, abs=1e-12)
-    assert r["scale"] == pytest.approx(4.0) and r["median_abs_rel_error"] == pytest.approx(0.75)
-    assert r["compared"] == 12 * 16 - 4 - 3
-    noisy = idepth * (1 + rng.normal(0.0, 0.1, idepth.shape))
-    assert 0.05 < P.aligned_depth_error(noisy, gt)["median_abs_rel_error_aligned"] < 0.15
-    assert P.aligned_depth_error(np.full((2, 2), np.nan), np.ones((2, 2)))["compared"] == 0
-
-
 def test_depth_series_prefers_the_aligned_error_and_the_run_folder_file(tmp_path):
     (tmp_path / "depth_accuracy.json").write_text(json.dumps(
         [{"t": 0.5, "median_abs_rel_error": 0.6, "median_abs_rel_error_aligned": 0.1},
@@ -509,11 +494,12 @@ def test_depth_series_prefers_the_aligned_error_and_the_run_folder_file(tmp_path
     assert P.depth_error_series({"depth_accuracy": {"frames": 3}}) == []
 
 
-def test_init_runs_use_the_init_child_with_random_init(tmp_path):
+def test_init_runs_are_random_init_lite_vo_runs_from_their_start_frame(tmp_path):
     spec = P.plan_init_study(str(make_sequence(tmp_path / "d")), "seqA", 2, 1.0, tmp_path / "o", pin_core=True)[1]
     cmd = " ".join(P.build_run_command(spec))
-    assert "-m lite_vo.profiler init-run" in cmd and f"--seed {spec.seed}" in cmd
-    assert f"--start-frame {spec.start_frame}" in cmd and "--set system.numba_threads=1" in cmd
+    assert "-m lite_vo.cli.main run" in cmd and "--init random" in cmd and f"--set system.seed={spec.seed}" in cmd
+    assert f"--start-frame {spec.start_frame}" in cmd and f"--max-frames {spec.max_frames}" in cmd
+    assert "--set system.numba_threads=1" in cmd
 
 
 def test_cli_passes_its_options_to_the_profiler(tmp_path, monkeypatch, capsys):
