@@ -34,7 +34,7 @@ import numpy as np
 from .camera import PinholeIntrinsics
 from .config import VOConfig
 from .errors import InputError, LiteVOError
-from .geometry import inverse_se3
+from .geometry import inverse_se3, project_to_se3
 
 log = logging.getLogger(__name__)
 
@@ -327,7 +327,9 @@ class VisualOdometry:
     def _build_reference(self, frame: _Frame, idepth, idepth_var, valid) -> _Reference:
         from .tracking import TrackingReference
         t = time.perf_counter()
-        tref = TrackingReference.build(frame.pyramid, idepth, idepth_var, valid, self.map_intrinsics, frame.index)
+        tref = TrackingReference.build(frame.pyramid, idepth, idepth_var, valid, self.map_intrinsics, frame.index,
+                                       smooth_sigma=self.config.tracking.smooth_sigma,
+                                       min_level=self.config.resolution.track_level)
         self.timers.add("build_reference", (time.perf_counter() - t) * 1e3)
         arrays = [np.array(a) for a in (idepth, idepth_var, valid)]
         for a in arrays:
@@ -390,7 +392,7 @@ class VisualOdometry:
                 self.counts["lost"] -= 1
                 return res
             return FrameResult(frame.index, frame.timestamp, None, True, quality, event="lost")
-        T_world_new = ref.T_world_ref @ tr.T_ref_new
+        T_world_new = project_to_se3(ref.T_world_ref @ tr.T_ref_new)
         event = "recovered" if self._lost_count > 0 else ""
         if self._lost_count == 0 and self._last_pose is not None:
             self._velocity = inverse_se3(self._last_pose) @ T_world_new
@@ -430,7 +432,8 @@ class VisualOdometry:
             self._initialized = True
             self.metric = True
         else:
-            valid = prev.depth_m > 0
+            from .tracking import depth_image_mask
+            valid = depth_image_mask(prev.image, prev.depth_m, self.config.tracking)
             idepth = np.where(valid, 1.0 / np.where(valid, prev.depth_m, 1.0), 0.0).astype(np.float32)
             var = np.full_like(idepth, self.config.mapping.depth_init_var)
             ref = self._build_reference(prev, idepth, var, valid)
@@ -443,7 +446,7 @@ class VisualOdometry:
                        "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used)}
             lost = bool(tr.lost) or not np.all(np.isfinite(tr.T_ref_new))
             # RGB-D odometry has no map to recover with: keep the last pose as the new reference
-            T_world_new = prev.T_world_cam @ tr.T_ref_new if not lost else self._last_pose
+            T_world_new = project_to_se3(prev.T_world_cam @ tr.T_ref_new) if not lost else self._last_pose
             self._velocity = inverse_se3(self._last_pose) @ T_world_new if not lost else np.eye(4)
         frame.T_world_cam = T_world_new
         self._last_pose = T_world_new

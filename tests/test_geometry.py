@@ -131,3 +131,14 @@ def test_tum_row_round_trip():
     T = exp_se3(rng().normal(size=(10, 6)))
     np.testing.assert_allclose(pose_from_tum(tum_from_pose(T)), T, atol=1e-12)
     np.testing.assert_allclose(make_pose(np.eye(3), [1, 2, 3])[:3, 3], [1, 2, 3])
+
+
+def test_project_to_se3_restores_a_drifted_rotation():
+    from lite_vo.geometry import project_to_se3
+    T = exp_se3(rng().normal(size=6))
+    drifted = T.copy()
+    drifted[:3, :3] *= 1.007
+    fixed = project_to_se3(drifted)
+    np.testing.assert_allclose(fixed[:3, :3] @ fixed[:3, :3].T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(fixed, T, atol=1e-12)
+    np.testing.assert_allclose(project_to_se3(T), T, atol=1e-12)

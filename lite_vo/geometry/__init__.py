@@ -21,6 +21,7 @@ from .se3 import (
     inverse_se3,
     log_se3,
     make_pose,
+    project_to_se3,
     transform_points,
 )
 from .sim3 import adjoint_sim3, exp_sim3, inverse_sim3, log_sim3
@@ -33,7 +34,7 @@ from .quaternion import (
 
 __all__ = [
     "hat", "vee", "exp_so3", "log_so3",
-    "exp_se3", "log_se3", "inverse_se3", "compose", "adjoint_se3", "make_pose", "transform_points",
+    "exp_se3", "log_se3", "inverse_se3", "compose", "adjoint_se3", "make_pose", "project_to_se3", "transform_points",
     "exp_sim3", "log_sim3", "inverse_sim3", "adjoint_sim3",
     "quat_xyzw_from_rotmat", "rotmat_from_quat_xyzw", "pose_from_tum", "tum_from_pose",
 ]

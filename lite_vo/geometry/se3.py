@@ -58,6 +58,19 @@ def adjoint_se3(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def project_to_se3(T: np.ndarray) -> np.ndarray:
+    """The nearest rigid transform: rotation part projected onto SO(3) (SVD), last row exact.
+
+    Products of many poses slowly lose orthonormality in floating point; apply this to poses
+    that are composed again and again (the system's pose chain).
+    """
+    T = np.asarray(T, dtype=np.float64)
+    U, _, Vt = np.linalg.svd(T[..., :3, :3])
+    D = np.ones(T.shape[:-2] + (3,))
+    D[..., 2] = np.sign(np.linalg.det(U @ Vt))
+    return make_pose((U * D[..., None, :]) @ Vt, T[..., :3, 3])
+
+
 def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:
     """Apply ``T_a_b`` (4, 4) to points (N, 3) -> (N, 3)."""
     T = np.asarray(T_a_b, dtype=np.float64)
