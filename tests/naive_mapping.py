@@ -346,7 +346,7 @@ def propagate(st, img_old, img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, m
     return out, counts
 
 
-def regularize(idepth, idepth_var, valid, validity, blacklist, radius, dist_var, diff_fac, validity_th):
+def regularize(idepth, idepth_var, valid, validity, blacklist, radius, dist_var, diff_fac, validity_th, var_mode=0):
     """Twin of ``regularize_kernel``: returns (idepth_s, var_s, valid_out, blacklist_out) (s only where valid_out)."""
     h, w = idepth.shape
     d = idepth.astype(np.float64)
@@ -369,7 +369,7 @@ def regularize(idepth, idepth_var, valid, validity, blacklist, radius, dist_var,
                 continue
             wgt = 1.0 / (v[ys, xs] + ((ys - y) ** 2 + (xs - x) ** 2) * dist_var)
             out_d[y, x] = np.sum(wgt * d[ys, xs]) / np.sum(wgt)
-            out_v[y, x] = v[ys, xs].min()
+            out_v[y, x] = (v[ys, xs].min(), v[y, x], 1.0 / np.sum(wgt))[var_mode]
             out_valid[y, x] = 1
     return out_d, out_v, out_valid, bl
 

@@ -383,7 +383,8 @@ def test_propagation_intensity_check_drops_changed_pixels():
 
 
 # ----------------------------------------------------------------------------- regularize / fill
-def test_regularize_matches_naive():
+@pytest.mark.parametrize("var_mode", [0, 1, 2])
+def test_regularize_matches_naive(var_mode):
     rng = np.random.default_rng(4)
     st = _random_state(rng, 25, 31, 0.7)
     st["idepth"][3, 3] = np.nan
@@ -393,9 +394,9 @@ def test_regularize_matches_naive():
     a_valid = np.zeros((25, 31), np.uint8)
     bl = st["blacklist"].copy()
     K.regularize_kernel(st["idepth"], st["idepth_var"], st["valid"], st["validity"], bl, 2, 0.005625, 1.0, 24.0,
-                        a_d, a_v, a_valid)
+                        var_mode, a_d, a_v, a_valid)
     n_d, n_v, n_valid, n_bl = naive.regularize(st["idepth"], st["idepth_var"], st["valid"], st["validity"],
-                                               st["blacklist"], 2, 0.005625, 1.0, 24.0)
+                                               st["blacklist"], 2, 0.005625, 1.0, 24.0, var_mode)
     np.testing.assert_array_equal(a_valid, n_valid)
     np.testing.assert_array_equal(bl, n_bl)
     m = n_valid == 1
@@ -414,7 +415,7 @@ def test_regularize_preserves_edges():
     o_v = np.zeros((h, w), np.float32)
     o_valid = np.zeros((h, w), np.uint8)
     K.regularize_kernel(d, var, valid, np.full((h, w), 20.0, np.float32), np.zeros((h, w), np.int32), 2, 0.005625,
-                        1.0, 24.0, o_d, o_v, o_valid)
+                        1.0, 24.0, 0, o_d, o_v, o_valid)
     np.testing.assert_allclose(o_d, d, rtol=1e-6)
     assert o_valid.all()
 

@@ -585,12 +585,13 @@ def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
 def regularize_kernel(idepth, idepth_var, valid, validity, blacklist, radius, dist_var, diff_fac,
-                      validity_th, o_idepth_s, o_var_s, o_valid):
+                      validity_th, var_mode, o_idepth_s, o_var_s, o_valid):
     """Inverse-variance weighted, edge-preserving smoothing of the valid hypotheses.
 
     A neighbour counts when ``diff_fac * diff^2 <= var_a + var_b``; weight ``1/(var + dist_var*r^2)``.
     A pixel whose compatible neighbours' validity sum is below ``validity_th`` is removed
-    (``o_valid = 0``, blacklist decremented). ``o_var_s`` = smallest compatible variance.
+    (``o_valid = 0``, blacklist decremented). ``o_var_s``: var_mode 0 = smallest compatible
+    variance (thesis 3.2.3), 1 = the pixel's own variance, 2 = 1 / sum of the weights (LSD-SLAM).
     """
     h, w = idepth.shape
     for y in prange(h):
@@ -626,7 +627,12 @@ def regularize_kernel(idepth, idepth_var, valid, validity, blacklist, radius, di
                 continue
             o_valid[y, x] = 1
             o_idepth_s[y, x] = s / si
-            o_var_s[y, x] = vmin
+            if var_mode == 0:
+                o_var_s[y, x] = vmin
+            elif var_mode == 1:
+                o_var_s[y, x] = vc
+            else:
+                o_var_s[y, x] = 1.0 / si
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)

@@ -66,6 +66,7 @@ class MappingConfig:
     reg_dist_var: float = param(0.005625, "regularisation weight 1/(var + this*dist^2)", 0.0, 10.0)
     reg_diff_fac: float = param(1.0, "neighbours count when this*diff^2 <= var_a + var_b", 0.0, 100.0)
     reg_validity_sum: float = param(24.0, "regularisation keeps a pixel when its neighbours' validity sum reaches this", 0.0, 1e4)
+    reg_var_mode: str = param("min", "variance published with the smoothed idepth: smallest compatible neighbour variance (thesis), own, or fused = 1/sum of weights (LSD-SLAM)", choices=("min", "own", "fused"))
     fill_validity_sum: float = param(30.0, "hole filling threshold on the 5x5 validity sum", 0.0, 1e4)
     unblacklist_validity_sum: float = param(100.0, "hole filling threshold for blacklisted pixels", 0.0, 1e5)
     fill_validity: float = param(0.0, "validity of a hypothesis created by hole filling", 0.0, 1000.0)

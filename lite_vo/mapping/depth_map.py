@@ -66,6 +66,9 @@ class MappingStats:
         return float(sum(self.stage_ms.values()))
 
 
+_VAR_MODES = {"min": 0, "own": 1, "fused": 2}
+
+
 def stereo_params(cfg: MappingConfig) -> np.ndarray:
     """The float64 parameter vector of the stereo kernels (layout: ``_kernels.P_*``)."""
     p = np.zeros(K.P_N, np.float64)
@@ -379,7 +382,8 @@ class Mapper:
         n_before = int(np.count_nonzero(s.valid))
         K.regularize_kernel(s.idepth, s.idepth_var, s.valid, s.validity, s.blacklist,
                             int(cfg.reg_radius), float(cfg.reg_dist_var), float(cfg.reg_diff_fac),
-                            float(cfg.reg_validity_sum), s.idepth_s, s.var_s, o_valid)
+                            float(cfg.reg_validity_sum), _VAR_MODES[cfg.reg_var_mode], s.idepth_s, s.var_s,
+                            o_valid)
         s.valid = o_valid
         stats.removed_regularize = n_before - int(np.count_nonzero(o_valid))
 
