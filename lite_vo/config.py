@@ -169,7 +169,8 @@ def _read_profile(name_or_path: str | os.PathLike, seen: tuple = ()) -> tuple[di
             raise ConfigError(f"unknown profile {s!r} (available: {', '.join(profile_names())})")
         text, source, name = res.read_text(encoding="utf-8"), f"profile {s}", s
         base_dir = None
-    if name in seen:
+    key = str(path.resolve()) if base_dir is not None else f"shipped:{name}"
+    if key in seen:
         raise ConfigError(f"{source}: profile inheritance loop via {name!r}")
     try:
         data = tomllib.loads(text)
@@ -181,7 +182,7 @@ def _read_profile(name_or_path: str | os.PathLike, seen: tuple = ()) -> tuple[di
             raise ConfigError(f"{source}: base must be a profile name or path")
         if base_dir is not None and (base_dir / base).is_file():
             base = str(base_dir / base)
-        parent, _, _ = _read_profile(base, seen + (name,))
+        parent, _, _ = _read_profile(base, seen + (key,))
         for sec, values in data.items():
             if isinstance(values, Mapping) and isinstance(parent.get(sec), Mapping):
                 parent[sec] = {**parent[sec], **values}
