@@ -893,7 +893,7 @@ def compiled_kernels(numba_debug_output: str) -> list[str]:
     out = []
     for m in re.finditer(r"data saved to '([^']+)'", numba_debug_output):
         p = Path(m.group(1))
-        pkg = p.parent.name.split("_")[0] if "_" in p.parent.name else p.parent.name
+        pkg = p.parent.name.rsplit("_", 1)[0] if "_" in p.parent.name else p.parent.name  # "<dir>_<hash>"
         name = re.sub(r"\.py\d+\.\d+\.nbc$", "", p.name)
         name = re.sub(r"-\d+$", "", name)
         out.append(f"{pkg}/{name}")

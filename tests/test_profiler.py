@@ -544,6 +544,8 @@ def test_compiled_kernels_from_numba_debug_output():
     text = ("[cache] index saved to '/tmp/c/tracking_9eea/_kernels.accumulate-89.py311.nbi'\n"
             "[cache] data saved to '/tmp/c/tracking_9eea/_kernels.accumulate-89.py311.2.nbc'\n"
             "[cache] data loaded from '/tmp/c/mapping_12ab/_kernels.observe-10.py311.1.nbc'\n"
-            "[cache] data saved to '/tmp/c/tracking_9eea/_kernels.lm_level-307.py311.2.nbc'\n")
-    assert P.compiled_kernels(text) == ["tracking/_kernels.accumulate", "tracking/_kernels.lm_level"]
+            "[cache] data saved to '/tmp/c/tracking_9eea/_kernels.lm_level-307.py311.2.nbc'\n"
+            "[cache] data saved to '/tmp/c/lite_vo_77aa/image._blur_separable-151.py311.1.nbc'\n")
+    assert P.compiled_kernels(text) == ["lite_vo/image._blur_separable", "tracking/_kernels.accumulate",
+                                        "tracking/_kernels.lm_level"]
     assert P.compiled_kernels("") == []
