@@ -43,6 +43,10 @@ ACCURACY_RUNS = (
      "python tools/map_with_gt.py ../shared/data/icl_livingroom_211 --init random "
      "--json benchmarks/mapping_icl_random.json --plot benchmarks/mapping_icl_random_depth_error.png",
      "median <= 5%, >= 80% within 10%, density >= 10%"),
+    ("mapping_icl_depth", "ICL living room 211, depth-image init",
+     "python tools/map_with_gt.py ../shared/data/icl_livingroom_211 --init depth "
+     "--json benchmarks/mapping_icl_depth.json --plot benchmarks/mapping_icl_depth_depth_error.png",
+     "(reference: metric start)"),
     ("mapping_synth_handheld_random", "synthetic room, hand-held, random init",
      "python tools/map_with_gt.py --synth handheld --frames 150 --init random "
      "--json benchmarks/mapping_synth_handheld_random.json --plot benchmarks/mapping_synth_handheld_depth_error.png",
@@ -68,7 +72,11 @@ def _accuracy_section(folder: Path) -> list[str]:
             "first 3 s, then every frame; unmapped frames are stereo references). Plots: "
             "`benchmarks/<name>_depth_error.png` (depth error over time, like Figure 5.8).", "",
             "| run | median abs. rel. error | within 5% | within 10% | density | frames | target | command |",
-            "|---|---|---|---|---|---|---|---|", *rows, ""]
+            "|---|---|---|---|---|---|---|---|", *rows, "",
+            "The ICL error floor is the same for a random and an exact (depth-image) start: it comes mostly "
+            "from the pseudo ground-truth poses (the per-frame median signed error drifts to +1..3% in the "
+            "middle of the sequence in both runs), not from the filter; with the exact poses of the synthetic "
+            "sequence the signed error stays within -0.2%.", ""]
 
 
 def main(argv=None) -> int:
