@@ -176,7 +176,7 @@ class Mapper:
         self.last_stats = MappingStats()
 
     # ------------------------------------------------------------------ helpers
-    def _check_frame(self, frame: MapFrame) -> _Prepared:
+    def _check_frame(self, frame: MapFrame, gradients: bool = True) -> _Prepared:
         img = np.ascontiguousarray(frame.image, dtype=np.float32)
         if img.shape != (self.h, self.w):
             raise InputError(f"Mapper: frame {frame.frame_id} image has shape {img.shape}, "
@@ -184,6 +184,8 @@ class Mapper:
         T = np.asarray(frame.T_world_cam, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise InputError(f"Mapper: frame {frame.frame_id} has an invalid T_world_cam")
+        if not gradients:                     # a pure stereo reference needs only its image
+            return _Prepared(frame, img, None, None, None)
         gx, gy, mg = image_gradients(img)
         return _Prepared(frame, img, gx, gy, mg)
 
@@ -281,7 +283,7 @@ class Mapper:
         """Add a tracked frame that is not mapped into the stereo reference buffer."""
         if self._cur is not None and frame.frame_id == self._cur.frame.frame_id:
             return
-        self._push_reference(self._check_frame(frame))
+        self._push_reference(self._check_frame(frame, gradients=False))
 
     def _push_reference(self, prep: _Prepared) -> None:
         if any(f.frame_id == prep.frame.frame_id for f, _ in self._buffer):
