@@ -701,3 +701,11 @@ def warmup() -> None:
     m.initialize_random(MapFrame(0, 0.0, img, T0))
     m.update(MapFrame(1, 0.033, img, T1))
     m.update(MapFrame(1, 0.033, img, T1))
+    # the per-pixel helpers are inlined into observe_kernel; compile their standalone versions too
+    R = np.eye(3)
+    t = np.array([0.01, 0.0, 0.0])
+    prm = m._params
+    epipolar_direction(img, 10, 10, 10.0, 10.0, -t, 30.0, 30.0, 15.5, 11.5, prm)
+    line_length(10.0, 10.0, 0.0, 1.0, R, t, 30.0, 30.0, 15.5, 11.5)
+    line_stereo(img, img, 10.0, 10.0, 1.0, 0.0, 0.0, 1.0, 2.0, R, t, 30.0, 30.0, 15.5, 11.5, 1.0, 0.0, 0.0,
+                prm, True, np.empty(64), np.empty(64))
