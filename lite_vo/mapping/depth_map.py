@@ -173,6 +173,7 @@ class Mapper:
         self._buffer: list[tuple[MapFrame, int]] = []   # (frame, slot), oldest first
         self._iteration = 0
         self._last_costs: dict | None = None
+        self._per_search_ms: float | None = None
         self.last_stats = MappingStats()
 
     # ------------------------------------------------------------------ helpers
@@ -205,6 +206,7 @@ class Mapper:
         self._cur = prep
         self._iteration = 0
         self._last_costs = None
+        self._per_search_ms = None
 
     def initialize_random(self, frame: MapFrame) -> None:
         """Chapter 5.2: idepth = min + U(0, range), var = init_var for every pixel with gradient >= min_grad."""
@@ -344,18 +346,26 @@ class Mapper:
         return slots, ids, Rs, ts, cs, res
 
     def _budget_stride(self, n_cand: int) -> int:
-        """Chapter 3.4: sub-sample the candidates (rotating offset) so observe fits the budget,
-        from the cost per searched pixel of the previous iteration."""
+        """Chapter 3.4: sub-sample the candidates (rotating offset) so the iteration fits the budget.
+
+        From the previous iteration: the cost per searched pixel (smoothed) and the time of the
+        other stages; observe always gets at least a quarter of the budget, and the stride changes
+        by at most a factor 2 per iteration (no run-away on a noisy clock)."""
         budget = self.config.budget_ms
         if budget <= 0 or self._last_costs is None or n_cand <= 0:
             return 1
         lc = self._last_costs
-        per = lc["observe_ms"] / lc["searched"]
-        if not per > 0:
+        if lc["searched"] >= 100:
+            per = lc["observe_ms"] / lc["searched"]
+            self._per_search_ms = per if self._per_search_ms is None else 0.7 * self._per_search_ms + 0.3 * per
+        per = self._per_search_ms
+        if per is None or not per > 0:
             return 1
-        allowed = max((budget - lc["other_ms"]) / per, 1.0)
-        expected = lc["searched"] * max(self.last_stats.stride, 1)   # searches without sub-sampling
-        return max(1, int(np.ceil(expected / allowed)))
+        old = max(self.last_stats.stride, 1)
+        allowed = max(budget - lc["other_ms"], 0.25 * budget) / per
+        expected = lc["searched"] * old          # searches without sub-sampling
+        want = max(1, int(np.ceil(expected / max(allowed, 1.0))))
+        return int(min(max(want, old // 2, 1), old * 2))
 
     def _observe(self, stats: MappingStats) -> None:
         cur, s, cfg = self._cur, self.state, self.config
