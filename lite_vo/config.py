@@ -51,6 +51,17 @@ class SystemConfig:
     seed: int = param(0, "seed for random initialisation", 0, 2**31 - 1)
     max_lost_frames: int = param(30, "re-initialise the map after this many consecutive lost frames", 1, 10000)
     realtime_speed: float = param(1.0, "realtime mode: playback speed relative to the timestamps", 0.01, 100.0)
+    verify_init: bool = param(True, "check a random initialisation against two-view geometry; re-initialise from two views when they disagree")
+    verify_features: int = param(300, "corners followed by Lucas-Kanade for the check", 20, 5000)
+    verify_min_parallax_px: float = param(25.0, "median corner displacement (px at 320 width) before the check", 1.0, 500.0)
+    verify_ransac_px: float = param(1.0, "RANSAC threshold of the essential matrix and homography (px at 320 width)", 0.1, 20.0)
+    verify_eh_ratio: float = param(1.2, "the essential matrix must have this many times the homography's inliers (translation, not just rotation)", 1.0, 10.0)
+    verify_min_inliers: int = param(40, "fewest corner inliers for a decision", 8, 5000)
+    bootstrap_always: bool = param(True, "re-initialise from two views as soon as the geometry allows, even when the tracked motion agrees (the two-view poses are the better ones)")
+    verify_max_rot_deg: float = param(2.0, "largest rotation difference between tracked and two-view pose that counts as agreement", 0.0, 180.0)
+    verify_max_tdir_deg: float = param(30.0, "largest translation-direction difference that counts as agreement", 0.0, 180.0)
+    verify_max_s: float = param(6.0, "give the check up (keep the random map) after this many seconds", 0.1, 600.0)
+    bootstrap_replay_every: int = param(1, "two-view bootstrap: replay the depth filter on every k-th stored frame", 1, 30)
 
 
 def _section_types() -> dict[str, type]:

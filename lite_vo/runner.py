@@ -224,7 +224,8 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
                         pose_source="given" if pose_source == "gt" else "estimate")
     realtime = config.system.mode == "realtime"
     progress = _Progress(total, not quiet)
-    stamps, poses, events = [], [], []
+    tracked: dict[int, tuple[float, np.ndarray]] = {}  # frame index -> (timestamp, T_world_cam)
+    events = []
     t_wall = time.perf_counter()
     t_first = None
     done = 0
@@ -257,14 +258,21 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
             res = vo.process(fr.image, fr.timestamp, depth=fr.depth, T_world_cam=T_given)
             if res.event:
                 events.append({"frame": res.index, "t": res.timestamp, "event": res.event})
+            for idx, T in res.corrections.items():  # earlier poses re-estimated (two-view bootstrap)
+                if idx in tracked:
+                    if T is None:
+                        del tracked[idx]
+                    else:
+                        tracked[idx] = (tracked[idx][0], T)
             if not res.lost and res.T_world_cam is not None:
-                stamps.append(res.timestamp)
-                poses.append(res.T_world_cam)
+                tracked[res.index] = (res.timestamp, res.T_world_cam)
             progress.update(done, vo.counts["lost"])
     finally:
         progress.close()
         vo.close()
     wall_s = time.perf_counter() - t_wall
+    stamps = [tracked[i][0] for i in sorted(tracked)]
+    poses = [tracked[i][1] for i in sorted(tracked)]
     if vo.counts["tracked"] == 0:
         status = "failed: no frame tracked"
     elif events and events[-1]["event"] == "lost":

@@ -49,6 +49,7 @@ class FrameResult:
     quality: dict = field(default_factory=dict)
     mapped: bool = False
     event: str = ""  # "init", "reinit", "lost", "recovered" or ""
+    corrections: dict = field(default_factory=dict)  # earlier frame index -> corrected T_world_cam or None
 
 
 class OutputSink:
@@ -175,10 +176,11 @@ class VisualOdometry:
         self._index = 0
         self._t0: float | None = None
         self._last_ts: float | None = None
-        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "reinit": 0, "mapped": 0}
+        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "reinit": 0, "bootstrap": 0, "mapped": 0}
         self._prev_depth_frame: _Frame | None = None
-        # mapping thread only
-        self._mapper = Mapper(config.mapping, self.map_intrinsics, seed=self._rng_seed)
+        # mapping thread only (replaced as a whole, under _ref_lock, on (re-)initialisation)
+        self._mapper = self._new_mapper()
+        self._verifier = None  # tracking thread only: InitVerifier after a random initialisation
         self._map_frames: list[tuple[float, dict]] = []  # (timestamp, depth accuracy) per mapped frame
         self.depth_accuracy_series: list[dict] = []
         # shared
@@ -315,8 +317,10 @@ class VisualOdometry:
         with self._ref_lock:
             return self._reference
 
-    def _publish(self, ref: _Reference, frame: _Frame, idepth, idepth_var, valid) -> None:
+    def _publish(self, ref: _Reference, frame: _Frame, idepth, idepth_var, valid, mapper) -> None:
         with self._ref_lock:
+            if mapper is not self._mapper:  # a map built by a mapper that was replaced meanwhile
+                return
             self._reference = ref
         if self.sinks:
             d = np.where(valid, idepth, np.nan).astype(np.float32)
@@ -336,8 +340,23 @@ class VisualOdometry:
             a.setflags(write=False)
         return _Reference(tref, frame.T_world_cam.copy(), frame.index, *arrays)
 
+    def _new_mapper(self):
+        from .mapping import Mapper
+        self._mapper_count = getattr(self, "_mapper_count", 0) + 1
+        return Mapper(self.config.mapping, self.map_intrinsics, seed=self._rng_seed + self._mapper_count - 1)
+
+    def _install_mapper(self, mapper, frame: _Frame) -> None:
+        """Make ``mapper`` (already initialised in ``frame``) the system's map and publish it."""
+        idepth, idepth_var, valid = mapper.current()
+        ref = self._build_reference(frame, idepth, idepth_var, valid)
+        self._stop_mapping_work()
+        with self._ref_lock:
+            self._mapper = mapper
+        self._publish(ref, frame, idepth, idepth_var, valid, mapper)
+
     def _initialize(self, frame: _Frame, T_world_cam: np.ndarray, event: str) -> FrameResult:
-        """(Re-)initialise the map in ``frame`` (depth image or random depth)."""
+        """(Re-)initialise the map in ``frame`` (depth image or random depth) with a new mapper."""
+        from .bootstrap import InitVerifier
         from .mapping import MapFrame
         init = self.config.system.init
         use_depth = init == "depth" or (init == "auto" and frame.depth_m is not None)
@@ -345,13 +364,16 @@ class VisualOdometry:
             raise InputError("init=depth needs a depth image for the first frame (the sequence has none)")
         frame.T_world_cam = T_world_cam
         mf = MapFrame(frame.index, frame.timestamp, frame.image, T_world_cam, 0.0)
-        self._stop_mapping_work()
+        mapper = self._new_mapper()
         if use_depth:
-            self._mapper.initialize_from_depth(mf, frame.depth_m)
+            mapper.initialize_from_depth(mf, frame.depth_m)
         else:
-            self._mapper.initialize_random(mf)
-        idepth, idepth_var, valid = self._mapper.current()
-        self._publish(self._build_reference(frame, idepth, idepth_var, valid), frame, idepth, idepth_var, valid)
+            mapper.initialize_random(mf)
+        self._install_mapper(mapper, frame)
+        self._verifier = None
+        if not use_depth and self.config.system.verify_init and self.pose_source == "estimate":
+            self._verifier = InitVerifier(self.config.system, self.map_intrinsics, frame.image, T_world_cam,
+                                          frame.index, frame.timestamp)
         self._initialized = True
         self.metric = bool(use_depth)
         self._last_pose = T_world_cam.copy()
@@ -379,7 +401,17 @@ class VisualOdometry:
             self.timers.add(f"track_lvl{lvl}", ms)
         quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio),
                    "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used)}
-        if tr.lost or not np.all(np.isfinite(tr.T_ref_new)):
+        lost = bool(tr.lost) or not np.all(np.isfinite(tr.T_ref_new))
+        T_world_new = None if lost else project_to_se3(ref.T_world_ref @ tr.T_ref_new)
+        if self._verifier is not None:
+            decision = self._verifier.add(frame.index, frame.timestamp, frame.image, T_world_new)
+            if decision is not None:
+                self._verifier = None
+                if not isinstance(decision, str):
+                    result = self._apply_bootstrap(decision, frame, quality)
+                    self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
+                    return result
+        if lost:
             self._lost_count += 1
             self.counts["lost"] += 1
             self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
@@ -392,15 +424,8 @@ class VisualOdometry:
                 self.counts["lost"] -= 1
                 return res
             return FrameResult(frame.index, frame.timestamp, None, True, quality, event="lost")
-        T_world_new = project_to_se3(ref.T_world_ref @ tr.T_ref_new)
         event = "recovered" if self._lost_count > 0 else ""
-        if self._lost_count == 0 and self._last_pose is not None:
-            self._velocity = inverse_se3(self._last_pose) @ T_world_new
-        else:
-            self._velocity = np.eye(4)
-        self._lost_count = 0
-        self._last_pose = T_world_new
-        self._last_good_pose = T_world_new
+        self._accept_pose(T_world_new, smooth=self._lost_count == 0)
         frame.T_world_cam = T_world_new
         frame.residual = float(tr.residual)
         self.counts["tracked"] += 1
@@ -408,6 +433,51 @@ class VisualOdometry:
         mapped = self._hand_to_mapping(frame)
         return FrameResult(frame.index, frame.timestamp, T_world_new.copy(), False, quality,
                            mapped=mapped, event=event)
+
+    def _accept_pose(self, T_world_new: np.ndarray, smooth: bool) -> None:
+        """Book-keeping of a tracked pose: velocity (constant-velocity guess) and last poses."""
+        if smooth and self._last_pose is not None:
+            self._velocity = inverse_se3(self._last_pose) @ T_world_new
+        else:
+            self._velocity = np.eye(4)
+        self._lost_count = 0
+        self._last_pose = T_world_new
+        self._last_good_pose = T_world_new
+
+    def _apply_bootstrap(self, boot, frame: _Frame, quality: dict) -> FrameResult:
+        """Replace a badly initialised random map: replay the filter with two-view + PnP poses."""
+        from .mapping import MapFrame
+        t = time.perf_counter()
+        boot_world = boot.T_world_init
+        mapper = self._new_mapper()
+        idx0, ts0, img0 = boot.frames[0]
+        # an empty map: with these poses, stereo searches the full depth range and creates the
+        # hypotheses itself (a random prior would keep pixels whose guess is off by > 2 sigma)
+        mapper.initialize_from_depth(MapFrame(idx0, ts0, img0, boot_world, 0.0), np.zeros_like(img0))
+        posed = [f for f in boot.frames[1:] if boot.T_j_init.get(f[0]) is not None]
+        every = self.config.system.bootstrap_replay_every
+        replay = [f for k, f in enumerate(posed) if (len(posed) - 1 - k) % every == 0]
+        for idx, ts, img in replay:
+            T = boot_world @ inverse_se3(boot.T_j_init[idx])
+            mapper.update(MapFrame(idx, ts, img, T, 0.0))
+        T_world_cur = project_to_se3(boot_world @ inverse_se3(boot.T_cur_init))
+        frame.T_world_cam = T_world_cur
+        self._install_mapper(mapper, frame)
+        self._accept_pose(T_world_cur, smooth=False)
+        self.counts["tracked"] += 1
+        self.counts["bootstrap"] += 1
+        self.timers.add("bootstrap", (time.perf_counter() - t) * 1e3)
+        corrections = {}
+        for idx, _, _ in boot.frames[1:]:
+            if idx == frame.index:
+                continue
+            T = boot.T_j_init.get(idx)
+            corrections[idx] = None if T is None else project_to_se3(boot_world @ inverse_se3(T))
+        quality = {**quality, "init": "bootstrap", "reason": boot.reason}
+        idepth, _, valid = mapper.current()
+        self._record_depth_accuracy(frame, idepth, valid)
+        return FrameResult(frame.index, frame.timestamp, T_world_cur.copy(), False, quality, mapped=True,
+                           event="reinit", corrections=corrections)
 
     def _process_given_pose(self, frame: _Frame, T_world_cam: np.ndarray, t_start: float) -> FrameResult:
         T_world_cam = np.asarray(T_world_cam, dtype=np.float64)
@@ -462,11 +532,18 @@ class VisualOdometry:
         return frame.index % every == 0
 
     def _hand_to_mapping(self, frame: _Frame) -> bool:
+        in_startup = frame.timestamp - self._t0 < self.config.system.startup_s
         if self._thread is None:  # sync
             if not self._mapping_due(frame):
+                from .mapping import MapFrame
+                # not mapped, but still a stereo reference for later frames
+                self._mapper.add_reference(MapFrame(frame.index, frame.timestamp, frame.image,
+                                                    frame.T_world_cam, frame.residual))
                 return False
             self._map_frame(frame)
             return True
+        if in_startup and not self._mapping_due(frame):
+            return False  # the start-up throttle of the paper applies in realtime mode too
         with self._cond:  # realtime: replace (skip) an older pending frame
             self._pending = frame
             self._cond.notify()
@@ -480,6 +557,9 @@ class VisualOdometry:
     # ------------------------------------------------------------------ mapping thread
     def _mapping_loop(self) -> None:
         try:
+            if self.config.system.numba_threads > 0:  # numba's thread count is per calling thread
+                import numba
+                numba.set_num_threads(min(self.config.system.numba_threads, numba.config.NUMBA_NUM_THREADS))
             while True:
                 with self._cond:
                     while self._pending is None and not self._stop:
@@ -495,15 +575,16 @@ class VisualOdometry:
     def _map_frame(self, frame: _Frame) -> None:
         from .mapping import MapFrame
         t = time.perf_counter()
+        mapper = self._mapper
         mf = MapFrame(frame.index, frame.timestamp, frame.image, frame.T_world_cam, frame.residual)
-        stats = self._mapper.update(mf)
+        stats = mapper.update(mf)
         for name, ms in stats.stage_ms.items():
             self.timers.add(name, ms)
-        idepth, idepth_var, valid = self._mapper.current()
+        idepth, idepth_var, valid = mapper.current()
         ref = self._build_reference(frame, idepth, idepth_var, valid)
         self.timers.add("mapping", (time.perf_counter() - t) * 1e3)
         self.counts["mapped"] += 1
-        self._publish(ref, frame, idepth, idepth_var, valid)
+        self._publish(ref, frame, idepth, idepth_var, valid, mapper)
         self._record_depth_accuracy(frame, idepth, valid)
 
     def _record_depth_accuracy(self, frame: _Frame, idepth=None, valid=None) -> None:

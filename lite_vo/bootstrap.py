@@ -1,0 +1,179 @@
+"""Verification of a random initialisation against two-view geometry, and the two-frame bootstrap.
+
+Random depth initialisation (thesis chapter 5.2) converges only when the first motion suits it;
+otherwise the filter settles on a wrong structure (e.g. the inverted-depth solution) and the
+tracked motion is wrong although the photometric residual is small. :class:`InitVerifier` watches
+the first seconds after a random initialisation:
+
+1. corners of the initialisation frame are followed with pyramidal Lucas-Kanade (OpenCV);
+2. once their median displacement reaches ``verify_min_parallax_px`` (scaled to the mapping
+   width) and the essential matrix explains the correspondences clearly better than a homography
+   (i.e. there is translation, not only rotation), the relative pose from the essential matrix is
+   compared with the pose the VO tracked over the same frames;
+3. if they agree (rotation and translation direction within the configured angles) the
+   initialisation is accepted; if not, it returns a :class:`Bootstrap`: the init frame and the
+   current frame are triangulated, every frame in between gets a PnP pose, and the system replays
+   the depth filter with these poses (as with ground-truth poses) before tracking goes on.
+
+Owned by the tracking thread. Imports numpy, OpenCV and lite_vo core modules only.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .camera import PinholeIntrinsics
+from .geometry import inverse_se3, log_so3, make_pose
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Bootstrap:
+    """Poses ``T_j_init`` (maps init-frame points into frame j) for the stored frames, with the
+    scale chosen so that the median depth of the triangulated points in the init frame is 1."""
+    T_cur_init: np.ndarray
+    T_world_init: np.ndarray                      # pose of the initialisation frame
+    T_j_init: dict = field(default_factory=dict)  # frame index -> 4x4 (None when PnP failed)
+    frames: list = field(default_factory=list)    # (index, timestamp, image float32) to replay
+    reason: str = ""
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na < 1e-12 or nb < 1e-12:
+        return 180.0
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / (na * nb), -1.0, 1.0))))
+
+
+class InitVerifier:
+    """Checks a random initialisation with sparse two-view geometry (tracking thread only).
+
+    ``add`` returns ``None`` while undecided, ``"accept"`` when the VO agrees with the
+    essential-matrix pose, ``"give_up"`` when no decision is possible (too few corners or out of
+    time: the paper's behaviour, the random initialisation is kept), or a :class:`Bootstrap`.
+    """
+
+    def __init__(self, config, intrinsics: PinholeIntrinsics, image0: np.ndarray, T_world_init: np.ndarray,
+                 index0: int, timestamp0: float) -> None:
+        import cv2
+        self._cv2 = cv2
+        self.cfg = config
+        self.K = intrinsics.K
+        self.scale_px = intrinsics.width / 320.0
+        img = self._u8(image0)
+        pts = cv2.goodFeaturesToTrack(img, maxCorners=int(config.verify_features), qualityLevel=0.01,
+                                      minDistance=max(3, int(7 * self.scale_px)))
+        self.p0 = np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
+        self.pts = self.p0.copy()
+        self.alive = np.ones(len(self.p0), bool)
+        self.prev = img
+        self.T_world_init = T_world_init.copy()
+        self.index0, self.t0 = index0, timestamp0
+        self.tracks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # index -> (pts, alive)
+        self.frames = [(index0, timestamp0, np.asarray(image0, np.float32))]
+        self.done = len(self.p0) < config.verify_min_inliers
+
+    @staticmethod
+    def _u8(image: np.ndarray) -> np.ndarray:
+        return np.clip(image, 0, 255).astype(np.uint8)
+
+    def add(self, index: int, timestamp: float, image: np.ndarray, T_world_cam: np.ndarray | None):
+        if self.done:
+            return None
+        cv2, cfg = self._cv2, self.cfg
+        if timestamp - self.t0 > cfg.verify_max_s:
+            self.done = True
+            log.info("init verification: no decision within %.1f s, keeping the random initialisation", cfg.verify_max_s)
+            return "give_up"
+        img = self._u8(image)
+        nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, img, self.pts.reshape(-1, 1, 2), None,
+                                              winSize=(15, 15), maxLevel=3)
+        self.prev = img
+        self.pts = nxt.reshape(-1, 2)
+        self.alive &= st.ravel() == 1
+        h, w = img.shape
+        inside = (self.pts[:, 0] >= 0) & (self.pts[:, 0] < w) & (self.pts[:, 1] >= 0) & (self.pts[:, 1] < h)
+        self.alive &= inside
+        self.tracks[index] = (self.pts.copy(), self.alive.copy())
+        self.frames.append((index, timestamp, np.asarray(image, np.float32)))
+        a, b = self.p0[self.alive], self.pts[self.alive]
+        if len(a) < cfg.verify_min_inliers:
+            self.done = True
+            return "give_up"
+        parallax = float(np.median(np.linalg.norm(a - b, axis=1)))
+        if parallax < cfg.verify_min_parallax_px * self.scale_px:
+            return None
+        # USAC with local optimisation: much more accurate translation directions than plain RANSAC
+        method = getattr(cv2, "USAC_ACCURATE", cv2.RANSAC)
+        thr = cfg.verify_ransac_px * self.scale_px
+        E, inl_e = cv2.findEssentialMat(a, b, self.K, method, 0.999, thr)
+        if E is None or E.shape[0] < 3 or inl_e is None:
+            return None
+        _, inl_h = cv2.findHomography(a, b, method, thr)
+        n_e = int(inl_e.sum())
+        n_h = int(inl_h.sum()) if inl_h is not None else 0
+        if n_e < cfg.verify_min_inliers or n_e < cfg.verify_eh_ratio * n_h:
+            return None  # rotation-dominated so far: wait for translation
+        _, R, t, mask = cv2.recoverPose(E[:3], a, b, self.K, mask=inl_e.copy())
+        if mask is None or int((mask.ravel() > 0).sum()) < cfg.verify_min_inliers:
+            return None  # too few points in front of both cameras: no decision yet
+        T_e = make_pose(R, t.ravel())  # T_cur_init, unit translation
+        if T_world_cam is not None:
+            T_vo = inverse_se3(T_world_cam) @ self.T_world_init
+            rot = float(np.degrees(np.linalg.norm(log_so3(R @ T_vo[:3, :3].T))))
+            tdir = _angle_deg(t.ravel(), T_vo[:3, 3])
+            if rot <= cfg.verify_max_rot_deg and tdir <= cfg.verify_max_tdir_deg and not cfg.bootstrap_always:
+                self.done = True
+                log.info("init verification: accepted at frame %d (rotation %.2f deg, translation direction %.1f deg)",
+                         index, rot, tdir)
+                return "accept"
+            agree = rot <= cfg.verify_max_rot_deg and tdir <= cfg.verify_max_tdir_deg
+            reason = (f"tracked motion {'agrees with' if agree else 'disagrees with'} two-view geometry "
+                      f"(rotation {rot:.1f} deg, direction {tdir:.0f} deg)")
+        else:
+            reason = "tracking lost during initialisation"
+        boot = self._bootstrap(a, b, T_e, mask.ravel() > 0, index, reason)
+        self.done = True
+        return boot
+
+    def _bootstrap(self, a, b, T_e, inl, index, reason):
+        cv2 = self._cv2
+        P0 = self.K @ np.hstack([np.eye(3), np.zeros((3, 1))])
+        P1 = self.K @ T_e[:3]
+        X = cv2.triangulatePoints(P0, P1, np.ascontiguousarray(a[inl].T, np.float64),
+                                  np.ascontiguousarray(b[inl].T, np.float64))
+        if X is None:
+            return "give_up"
+        X = (X[:3] / X[3]).T
+        z1 = (X @ T_e[:3, :3].T + T_e[:3, 3])[:, 2]
+        good = (X[:, 2] > 0) & (z1 > 0)
+        if good.sum() < self.cfg.verify_min_inliers:
+            return "give_up"
+        scale = float(np.median(X[good, 2]))
+        X = X / scale
+        T_e = T_e.copy()
+        T_e[:3, 3] /= scale
+        # PnP for every stored frame with the corners that were inliers at the decision frame
+        alive_idx = np.nonzero(self.alive)[0][inl][good]
+        pts3 = X[good]
+        T_j: dict[int, np.ndarray | None] = {self.index0: np.eye(4), index: T_e}
+        for j, (pts, alive) in self.tracks.items():
+            if j == index:
+                continue
+            ok = alive[alive_idx]
+            if ok.sum() < 12:
+                T_j[j] = None
+                continue
+            found, rvec, tvec = cv2.solvePnP(pts3[ok], pts[alive_idx][ok].astype(np.float64), self.K, None,
+                                             flags=cv2.SOLVEPNP_EPNP)
+            if found:
+                found, rvec, tvec = cv2.solvePnP(pts3[ok], pts[alive_idx][ok].astype(np.float64), self.K, None,
+                                                 rvec, tvec, True, flags=cv2.SOLVEPNP_ITERATIVE)
+            T_j[j] = make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel()) if found else None
+        log.warning("init verification: %s at frame %d; re-initialising from two views (%d points)",
+                    reason, index, len(pts3))
+        return Bootstrap(T_cur_init=T_e, T_world_init=self.T_world_init, T_j_init=T_j, frames=list(self.frames),
+                         reason=reason)
