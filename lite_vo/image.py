@@ -325,3 +325,6 @@ def warmup() -> None:
     intensity_gradient_stack(img)
     bspline_coefficient_stack(img)
     gaussian_blur(img, 0.7)
+    img_ro = img.copy()
+    img_ro.flags.writeable = False  # pyramids handed to a TrackingReference become read-only
+    gaussian_blur(img_ro, 0.7)

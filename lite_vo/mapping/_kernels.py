@@ -701,6 +701,14 @@ def warmup() -> None:
     m.initialize_random(MapFrame(0, 0.0, img, T0))
     m.update(MapFrame(1, 0.033, img, T1))
     m.update(MapFrame(1, 0.033, img, T1))
+    # the system's frame images may be read-only (shared with a TrackingReference): numba
+    # compiles those separately
+    img_ro = img.copy()
+    img_ro.flags.writeable = False
+    m = Mapper(MappingConfig(), K, seed=0)
+    m.initialize_random(MapFrame(0, 0.0, img_ro, T0))
+    m.update(MapFrame(1, 0.033, img_ro, T1))
+    m.update(MapFrame(2, 0.066, img, T0))
     # the per-pixel helpers are inlined into observe_kernel; compile their standalone versions too
     R = np.eye(3)
     t = np.array([0.01, 0.0, 0.0])

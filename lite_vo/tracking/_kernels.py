@@ -516,6 +516,14 @@ def warmup() -> None:
     stats = np.zeros(ST_SIZE)
     lm_level(pts, img3, INTERP_BSPLINE, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, aff, 5.0, True, 1e-6, 1600.0, 0.25, 1.0, 1e-3,
              3, 0.999, 1e-8, 0.2, 0.2, 0.5, 2.0, 6, 1e-12, 1e-2, buf, T_out, acc, aff_out, stats)
+    # TrackingReference hands the kernels read-only point arrays: numba types those separately
+    pts_ro = pts.copy()
+    pts_ro.flags.writeable = False
+    accumulate(pts_ro, img3, INTERP_BILINEAR, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3,
+               buf, acc)
+    lm_level(pts_ro, img3, INTERP_BSPLINE, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, aff, 5.0, True, 1e-6, 1600.0, 0.25, 1.0,
+             1e-3, 3, 0.999, 1e-8, 0.2, 0.2, 0.5, 2.0, 6, 1e-12, 1e-2, buf, T_out, acc, aff_out, stats)
+    unpack_normal_equations(acc, np.empty((6, 6)), np.empty(6))
     x = np.zeros(6)
     solve6(np.eye(6), np.ones(6), x, 1e-12)
     E = np.empty((4, 4))
