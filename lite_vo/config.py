@@ -136,6 +136,9 @@ def build_config(data: Mapping[str, Any], source: str = "profile", name: str = "
     types = _section_types()
     sections = {}
     for sec, values in data.items():
+        if sec == "name" and isinstance(values, str):  # as written by VOConfig.to_dict()
+            name = values
+            continue
         if sec not in types:
             raise ConfigError(f"{source}: unknown section [{sec}] (known: {', '.join(types)})")
         if not isinstance(values, Mapping):

@@ -157,7 +157,7 @@ def relative_pairs(t: np.ndarray, delta_s: float, end_tol: float = 0.02) -> tupl
     j = np.clip(np.searchsorted(t, target), 1, n - 1)
     j = np.where(np.abs(t[j - 1] - target) <= np.abs(t[j] - target), j - 1, j)
     i = np.arange(n)
-    tol = 1e-9 * max(1.0, float(np.abs(t).max()))
+    tol = 1e-6  # seconds: float noise only (a tolerance relative to Unix timestamps would be ~1 s)
     ok = (j > i) & (target <= t[-1] + end_tol + tol) & (np.abs(t[j] - target) <= 0.5 * delta_s + tol)
     return i[ok], j[ok]
 

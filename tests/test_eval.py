@@ -274,3 +274,12 @@ def test_cli_eval_bad_input(tmp_path, capsys):
     assert "only 0 estimated poses match" in capsys.readouterr().err
     assert main(["eval", "--gt", str(gt_p), "--est", str(gt_p), "--delta-s", "-1"]) == 1
     assert "delta_s must be > 0" in capsys.readouterr().err
+
+
+def test_no_rpe_pairs_for_a_run_shorter_than_delta_with_unix_timestamps():
+    from lite_vo.eval import relative_pairs
+    t = 1305031102.175304 + np.arange(9) / 30.0  # 0.27 s of TUM fr1/desk
+    i, j = relative_pairs(t, 1.0)
+    assert len(i) == 0
+    i, j = relative_pairs(t, 0.1)
+    assert len(i) > 0 and np.all(np.abs(t[j] - t[i] - 0.1) <= 0.05 + 1e-6)
