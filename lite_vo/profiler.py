@@ -977,19 +977,8 @@ OUTPUT_ENTRIES = ("runs", "init_study", "report.md", "report.json", "accuracy_vs
 
 def prepare_out(out: Path, force: bool) -> None:
     """Refuse an existing, non-empty output folder unless ``force``; with it, remove our own entries."""
-    import shutil
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()):
-        if not force:
-            raise InputError(f"{out}: output folder exists (use --force to overwrite)")
-        for name in OUTPUT_ENTRIES:
-            p = out / name
-            if p.is_dir():
-                shutil.rmtree(p)
-            elif p.exists():
-                p.unlink()
-    out.mkdir(parents=True, exist_ok=True)
+    from .io import prepare_output_dir
+    prepare_output_dir(out, force, clean=OUTPUT_ENTRIES)
 
 
 def run_warmup_subprocess(timeout: float = 1800.0) -> dict:

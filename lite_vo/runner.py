@@ -23,7 +23,7 @@ from .system import OutputSink, VisualOdometry
 
 log = logging.getLogger(__name__)
 
-OUTPUT_FILES = ("trajectory.txt", "timing.json", "run.json", "map.ply")
+RUN_OUTPUTS = ("trajectory.txt", "timing.json", "run.json", "map.ply", "depth_accuracy.json", "depth_error.png")
 CORE_KERNEL_MODULES = ("lite_vo.image", "lite_vo.tracking._kernels", "lite_vo.mapping._kernels")
 
 
@@ -45,16 +45,6 @@ def versions() -> dict:
     return {"lite_vo": __version__, "python": platform.python_version(), "numpy": np.__version__,
             "numba": numba.__version__, "opencv": cv2.__version__, "platform": platform.platform(),
             "machine": platform.machine()}
-
-
-def prepare_out_dir(out_dir: Path, force: bool) -> None:
-    """Create ``out_dir``; refuse to overwrite an existing non-empty folder without ``force``."""
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"{out_dir}: exists and is not a folder")
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not force:
-        raise InputError(f"{out_dir}: output folder exists and is not empty (use --force to overwrite)")
-    out_dir.mkdir(parents=True, exist_ok=True)
 
 
 class _Progress:
@@ -201,11 +191,11 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
     poses from the ground truth (mapping only); ``depth_source="images"`` tracks against the
     depth images (tracking only).
     """
-    from .io import Trajectory, open_sequence, write_ply, write_trajectory
+    from .io import Trajectory, open_sequence, prepare_output_dir, write_ply, write_trajectory
 
     seq = open_sequence(sequence) if isinstance(sequence, (str, Path, int)) else sequence
     if out_dir is not None:
-        prepare_out_dir(Path(out_dir), force)
+        prepare_output_dir(Path(out_dir), force, clean=RUN_OUTPUTS)
     if depth_source == "images" and not seq.has_depth:
         raise InputError(f"{seq.name}: --depth images needs depth images, the sequence has none")
     if config.system.init == "depth" and not seq.has_depth:

@@ -70,9 +70,10 @@ def run(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".mp4":
         raise InputError(f"{out}: the output video must end in .mp4")
+    from ..io import check_output_file
     for path in (out, args.mesh, args.trajectory):
-        if path is not None and Path(path).exists() and not args.force:
-            raise InputError(f"{path}: exists (use --force to overwrite)")
+        if path is not None:
+            check_output_file(path, args.force)
     if args.mesh is not None and Path(args.mesh).suffix.lower() not in (".obj", ".ply"):
         raise InputError(f"{args.mesh}: the mesh must be .obj or .ply")
     if args.max_frames is not None and args.max_frames <= 0:

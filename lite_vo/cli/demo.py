@@ -44,14 +44,10 @@ def run(args) -> int:
 
     from ..synth import generate_sequence
 
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not args.force:
-        raise InputError(f"{out}: folder exists and is not empty (use --force to overwrite)")
+    from ..io import prepare_output_dir
     if args.frames < 10:
         raise InputError(f"--frames must be at least 10, got {args.frames}")
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_output_dir(Path(args.out), args.force)
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
     if args.keep_sequence:
         seq_dir = out / "sequence"

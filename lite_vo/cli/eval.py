@@ -64,10 +64,10 @@ def run(args) -> int:
 
     from ..errors import InputError
     from ..eval import evaluate
+    from ..io import check_output_file
     out = Path(args.json) if args.json else None
     if out is not None:
-        if out.exists() and not args.force:
-            raise InputError(f"{out}: already exists (use --force to overwrite)")
+        check_output_file(out, args.force)
         if not out.parent.is_dir():
             raise InputError(f"{out.parent}: folder for --json does not exist")
     gt = _load_gt(args.gt)

@@ -130,18 +130,10 @@ def iter_frames(scene: str = "room", trajectory: str = "handheld", n_frames: int
 
 
 def _prepare_out_dir(out: Path, force: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()):
-        if not force:
-            raise InputError(f"{out}: folder exists and is not empty (use --force to overwrite)")
-        for sub in ("rgb", "depth"):
-            d = out / sub
-            if d.is_dir():
-                for f in d.glob("*.png"):
-                    f.unlink()
-    (out / "rgb").mkdir(parents=True, exist_ok=True)
-    (out / "depth").mkdir(parents=True, exist_ok=True)
+    from ..io import prepare_output_dir
+    prepare_output_dir(out, force, clean=("rgb/*.png", "depth/*.png"))
+    (out / "rgb").mkdir(exist_ok=True)
+    (out / "depth").mkdir(exist_ok=True)
 
 
 def generate_sequence(out_dir, scene: str = "room", trajectory: str = "handheld",

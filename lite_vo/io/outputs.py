@@ -1,0 +1,38 @@
+"""The overwrite rule for everything the commands write: nothing the user has is replaced without
+``--force``. One place for the check and its one-line messages."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Iterable
+
+from ..errors import InputError
+
+
+def prepare_output_dir(out: Path, force: bool, clean: Iterable[str] = ()) -> Path:
+    """Create ``out``; refuse an existing non-empty folder unless ``force``.
+
+    With ``force``, the entries matching the glob patterns ``clean`` (the command's own outputs)
+    are removed first; nothing else in the folder is touched.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not force:
+            raise InputError(f"{out}: output folder exists and is not empty (use --force to overwrite)")
+        for pattern in clean:
+            for p in out.glob(pattern):
+                if p.is_dir():
+                    shutil.rmtree(p)
+                else:
+                    p.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def check_output_file(path, force: bool) -> None:
+    """Refuse to replace an existing file unless ``force``."""
+    path = Path(path)
+    if path.exists() and not force:
+        raise InputError(f"{path}: already exists (use --force to overwrite)")
