@@ -205,7 +205,7 @@ class PhysicsWorld:
         """Replace the static world body by the mesh (world coordinates): add new, remove old."""
         pb, c = self._pb, self.client
         faces = np.asarray(faces, dtype=np.int32)
-        old_body, old_shape = self.world_body, self.world_shape
+        old_body = self.world_body  # its collision shape cannot be freed in pybullet 3.2
         self.world_body, self.world_shape = -1, -1
         if len(faces):
             verts = self.frame.to_phys(vertices_world)

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from .config import VOConfig
-from .errors import InputError, LiteVOError
-from .system import OutputSink, VisualOdometry
+from .errors import InputError
+from .system import VisualOdometry
 
 log = logging.getLogger(__name__)
 

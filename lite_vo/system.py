@@ -143,7 +143,6 @@ class VisualOdometry:
     def __init__(self, camera, config: VOConfig, sinks: Iterable[OutputSink] = (),
                  depth_source: str = "filter", pose_source: str = "estimate") -> None:
         from .image import image_pyramid
-        from .mapping import Mapper
         from .tracking import Tracker
 
         if depth_source not in ("filter", "images"):

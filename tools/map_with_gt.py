@@ -155,7 +155,6 @@ def run(args) -> dict:
     mapper = Mapper(cfg, K, seed=args.seed)
     rows = []
     t_start = None
-    last_map_t = None
     count = 0
     for idx, ts, img, depth, T in frames:
         if args.frames and count >= args.frames:
@@ -170,7 +169,6 @@ def run(args) -> dict:
                 mapper.initialize_from_depth(f, depth)
             else:
                 mapper.initialize_random(f)
-            last_map_t = ts
             last_idx = idx
             continue
         every = args.map_every_startup if ts - t_start < args.startup_s else args.map_every

@@ -49,7 +49,7 @@ def rpe_excluding(gt, est, seams_s, delta_s=1.0) -> dict:
     from lite_vo.geometry import inverse_se3
     ti = est.timestamps
     gi = np.array([int(np.argmin(np.abs(gt.timestamps - t))) for t in ti])
-    tr, rot, mot, rmot = [], [], [], []
+    tr, rot, mot = [], [], []
     for i in range(len(ti)):
         j = int(np.argmin(np.abs(ti - (ti[i] + delta_s))))
         dt = ti[j] - ti[i]

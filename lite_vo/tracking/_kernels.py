@@ -306,7 +306,6 @@ def solve6(A, b, x, rel_eps):
 @njit(cache=True, nogil=True, fastmath=False)
 def exp_se3_nb(xi, out):
     """``out = exp(xi)`` for the twist ``xi = (v, omega)`` (same maths as geometry.exp_se3)."""
-    vx = xi[0]; vy = xi[1]; vz = xi[2]
     wx = xi[3]; wy = xi[4]; wz = xi[5]
     th2 = wx * wx + wy * wy + wz * wz
     th = np.sqrt(th2)
