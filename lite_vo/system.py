@@ -10,11 +10,14 @@ Threads and ownership
 ``mode="realtime"`` runs mapping in a second thread:
 
 * **tracking thread** (the caller of :meth:`VisualOdometry.process`) only: ``_tracker``,
-  ``_last_pose``, ``_velocity``, ``_lost_count``, the timers of tracking.
-* **mapping thread** only: ``_mapper``, the mapping timers, ``_map_frames``.
+  ``_verifier``, ``_last_pose``, ``_velocity``, ``_lost_count``, the timers of tracking.
+* **mapping thread** only: the *contents* of ``_mapper`` (``update``), the mapping timers.
 * **shared**: ``_reference`` (an immutable :class:`TrackingReference` plus the pose of the frame it
-  lives in), swapped by the mapping thread under ``_ref_lock``; ``_pending`` (the newest tracked
+  lives in), swapped under ``_ref_lock`` by whoever built it; ``_pending`` (the newest tracked
   frame waiting for mapping; older ones are replaced, i.e. skipped) under ``_cond``.
+  (Re-)initialisation happens in the tracking thread: it builds a *new* mapper and installs it
+  under ``_ref_lock``; a map made meanwhile by the old mapper is not published, and frames tracked
+  against the old map (``_Frame.mapper``) are not mapped into the new one.
   No array is written after it has been handed to the other thread.
 
 Numba kernels release the GIL, so both threads really run in parallel.
@@ -119,6 +122,7 @@ class _Frame:
     depth_m: np.ndarray | None        # at mapping resolution, 0 = invalid
     T_world_cam: np.ndarray | None = None
     residual: float = 0.0
+    mapper: Any = None                # the mapper whose map this frame was tracked against
 
 
 class VisualOdometry:
@@ -180,7 +184,6 @@ class VisualOdometry:
         # mapping thread only (replaced as a whole, under _ref_lock, on (re-)initialisation)
         self._mapper = self._new_mapper()
         self._verifier = None  # tracking thread only: InitVerifier after a random initialisation
-        self._map_frames: list[tuple[float, dict]] = []  # (timestamp, depth accuracy) per mapped frame
         self.depth_accuracy_series: list[dict] = []
         # shared
         self._ref_lock = threading.Lock()
@@ -531,6 +534,7 @@ class VisualOdometry:
         return frame.index % every == 0
 
     def _hand_to_mapping(self, frame: _Frame) -> bool:
+        frame.mapper = self._mapper
         in_startup = frame.timestamp - self._t0 < self.config.system.startup_s
         if self._thread is None:  # sync
             if not self._mapping_due(frame):
@@ -574,7 +578,9 @@ class VisualOdometry:
     def _map_frame(self, frame: _Frame) -> None:
         from .mapping import MapFrame
         t = time.perf_counter()
-        mapper = self._mapper
+        mapper = frame.mapper
+        if mapper is not self._mapper:
+            return  # tracked against a map that was replaced meanwhile (other scale): skip it
         mf = MapFrame(frame.index, frame.timestamp, frame.image, frame.T_world_cam, frame.residual)
         stats = mapper.update(mf)
         for name, ms in stats.stage_ms.items():

@@ -145,3 +145,19 @@ def test_bad_input_is_a_clear_error(synth_small):
     with pytest.raises(InputError, match="NaN"):
         given.process(frames[0].image, 1.0, T_world_cam=np.full((4, 4), np.nan))
     given.close()
+
+
+def test_frames_tracked_against_a_replaced_map_are_not_mapped_into_the_new_one(synth_small):
+    seq, frames = _frames(synth_small, 3)
+    cfg = lite_vo.load_profile("phone", ['system.init="depth"'])
+    with VisualOdometry(seq.camera, cfg) as vo:
+        vo.process(frames[0].image, frames[0].timestamp, depth=frames[0].depth)
+        stale = vo._preprocess(frames[1].image, frames[1].timestamp, None)
+        stale.T_world_cam = np.eye(4)
+        stale.mapper = object()  # the map it was tracked against has been replaced
+        ref_before, mapped_before = vo._current_reference(), vo.counts["mapped"]
+        vo._map_frame(stale)
+        assert vo._current_reference() is ref_before and vo.counts["mapped"] == mapped_before
+        stale.mapper = vo._mapper
+        vo._map_frame(stale)
+        assert vo._current_reference() is not ref_before and vo.counts["mapped"] == mapped_before + 1
