@@ -13,7 +13,7 @@ The frame is fixed once (first world model) so the simulation never jumps.
 the old one (and its collision shape) between two simulation steps: the car keeps its state.
 
 Ownership: a :class:`PhysicsWorld` is used by one thread only (the pipeline's main loop).
-Imports: numpy, pybullet, pybullet_data, lite_vo (errors).
+Imports: numpy, pybullet, pybullet_data, lite_vo (errors, geometry).
 """
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lite_vo.errors import MissingExtraError
+from lite_vo.geometry import make_pose, rotmat_from_quat_xyzw
 
 GRAVITY = 9.81            # physical constant of the simulated world (m/s^2)
 WHEELS = (2, 3, 5, 7)     # racecar.urdf joint indices of the driven wheels
@@ -95,18 +96,9 @@ class PhysicsFrame:
         return S
 
 
-def _quat_matrix(q) -> np.ndarray:
-    x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
 def pose_matrix(pos, quat_xyzw) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = _quat_matrix(quat_xyzw)
-    T[:3, 3] = pos
-    return T
+    """4x4 pose from a position and a pybullet (xyzw) quaternion."""
+    return make_pose(rotmat_from_quat_xyzw(quat_xyzw), pos)
 
 
 @dataclass
