@@ -161,11 +161,10 @@ class VisualOdometry:
         if config.system.numba_threads > 0:
             import numba
             numba.set_num_threads(min(config.system.numba_threads, numba.config.NUMBA_NUM_THREADS))
-        multiple = 2 ** (res.pyramid_levels - 1)
-        if isinstance(camera, PinholeIntrinsics):
-            self._rectifier = _ResizeOnly(camera, res.map_width, multiple)
-        else:
-            self._rectifier = camera.rectifier(res.map_width, multiple_of=multiple)
+        if isinstance(camera, PinholeIntrinsics):  # already undistorted input: resize and crop only
+            from .camera import Camera
+            camera = Camera(camera)
+        self._rectifier = camera.rectifier(res.map_width, multiple_of=2 ** (res.pyramid_levels - 1))
         self.map_intrinsics: PinholeIntrinsics = self._rectifier.intrinsics
         self._image_pyramid = image_pyramid
         self.timers = Timers()
@@ -182,6 +181,7 @@ class VisualOdometry:
         self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "reinit": 0, "bootstrap": 0, "mapped": 0}
         self._prev_depth_frame: _Frame | None = None
         # mapping thread only (replaced as a whole, under _ref_lock, on (re-)initialisation)
+        self._mapper_count = 0  # mappers made so far: each new one gets its own seed
         self._mapper = self._new_mapper()
         self._verifier = None  # tracking thread only: InitVerifier after a random initialisation
         self.depth_accuracy_series: list[dict] = []
@@ -234,16 +234,17 @@ class VisualOdometry:
         if ref is None:
             h, w = self.map_intrinsics.height, self.map_intrinsics.width
             return np.full((h, w), np.nan, np.float32), np.full((h, w), np.nan, np.float32)
-        return (np.where(ref.valid, ref.idepth, np.nan).astype(np.float32),
-                np.where(ref.valid, ref.idepth_var, np.nan).astype(np.float32))
+        return _nan_where_empty(ref.idepth, ref.idepth_var, ref.valid)
 
     def map_points(self) -> tuple[np.ndarray, np.ndarray]:
         """World-frame points (N, 3) of the latest map and their idepth variance (N,)."""
         with self._ref_lock:
             ref = self._reference
-        idepth, var = self.depth_map()
+        if ref is None:
+            return np.zeros((0, 3)), np.zeros(0)
+        idepth, var = _nan_where_empty(ref.idepth, ref.idepth_var, ref.valid)  # pose and map of one reference
         ok = np.isfinite(idepth) & (idepth > 1e-6)
-        if ref is None or not ok.any():
+        if not ok.any():
             return np.zeros((0, 3)), np.zeros(0)
         v, u = np.nonzero(ok)
         p_cam = self.map_intrinsics.unproject_idepth(u, v, idepth[ok])
@@ -325,8 +326,7 @@ class VisualOdometry:
                 return
             self._reference = ref
         if self.sinks:
-            d = np.where(valid, idepth, np.nan).astype(np.float32)
-            v = np.where(valid, idepth_var, np.nan).astype(np.float32)
+            d, v = _nan_where_empty(idepth, idepth_var, valid)
             for s in self.sinks:
                 s.on_map(frame.index, frame.timestamp, ref.T_world_ref, d, v, self.map_intrinsics)
 
@@ -344,8 +344,9 @@ class VisualOdometry:
 
     def _new_mapper(self):
         from .mapping import Mapper
-        self._mapper_count = getattr(self, "_mapper_count", 0) + 1
-        return Mapper(self.config.mapping, self.map_intrinsics, seed=self._rng_seed + self._mapper_count - 1)
+        seed = self._rng_seed + self._mapper_count
+        self._mapper_count += 1
+        return Mapper(self.config.mapping, self.map_intrinsics, seed=seed)
 
     def _install_mapper(self, mapper, frame: _Frame) -> None:
         """Make ``mapper`` (already initialised in ``frame``) the system's map and publish it."""
@@ -610,33 +611,7 @@ class VisualOdometry:
         self.depth_accuracy_series.append(acc)
 
 
-class _ResizeOnly:
-    """Rectifier for input that is already undistorted: resize (keeping the aspect) + centre crop."""
-
-    def __init__(self, intrinsics: PinholeIntrinsics, width: int, multiple_of: int) -> None:
-        import cv2
-        self._cv2 = cv2
-        h = int(round(width * intrinsics.height / intrinsics.width))
-        scaled = intrinsics.scaled(width, h)
-        w_out, h_out = width - width % multiple_of, h - h % multiple_of
-        if w_out <= 0 or h_out <= 0:
-            raise LiteVOError(f"mapping width {width} too small for a pyramid needing multiples of {multiple_of}")
-        self._x0, self._y0 = (width - w_out) // 2, (h - h_out) // 2
-        self._size = (width, h)
-        self._native = (intrinsics.width, intrinsics.height)
-        self.intrinsics = PinholeIntrinsics(scaled.fx, scaled.fy, scaled.cx - self._x0, scaled.cy - self._y0, w_out, h_out)
-
-    def _check(self, image: np.ndarray) -> None:
-        if (image.shape[1], image.shape[0]) != self._native:
-            raise InputError(f"image is {image.shape[1]}x{image.shape[0]}, the calibration says "
-                             f"{self._native[0]}x{self._native[1]}")
-
-    def __call__(self, image: np.ndarray) -> np.ndarray:
-        self._check(image)
-        img = self._cv2.resize(image.astype(np.float32), self._size, interpolation=self._cv2.INTER_AREA)
-        return np.ascontiguousarray(img[self._y0:self._y0 + self.intrinsics.height, self._x0:self._x0 + self.intrinsics.width])
-
-    def depth(self, depth: np.ndarray) -> np.ndarray:
-        self._check(depth)
-        d = self._cv2.resize(depth.astype(np.float32), self._size, interpolation=self._cv2.INTER_NEAREST)
-        return np.ascontiguousarray(d[self._y0:self._y0 + self.intrinsics.height, self._x0:self._x0 + self.intrinsics.width])
+def _nan_where_empty(idepth, idepth_var, valid) -> tuple[np.ndarray, np.ndarray]:
+    """float32 copies of a map with NaN where there is no hypothesis (the public map format)."""
+    return (np.where(valid, idepth, np.nan).astype(np.float32),
+            np.where(valid, idepth_var, np.nan).astype(np.float32))

@@ -161,3 +161,14 @@ def test_frames_tracked_against_a_replaced_map_are_not_mapped_into_the_new_one(s
         stale.mapper = vo._mapper
         vo._map_frame(stale)
         assert vo._current_reference() is not ref_before and vo.counts["mapped"] == mapped_before + 1
+
+
+def test_plain_intrinsics_of_undistorted_input_work_like_the_camera(synth_small):
+    seq, frames = _frames(synth_small, 8)
+    cfg = lite_vo.load_profile("phone", ['system.init="depth"'])
+    poses = []
+    for cam in (seq.camera, seq.camera.intrinsics):
+        with VisualOdometry(cam, cfg) as vo:
+            poses.append([vo.process(f.image, f.timestamp, depth=f.depth).T_world_cam for f in frames])
+    assert vo.map_intrinsics.width == 320
+    np.testing.assert_array_equal(np.asarray(poses[0]), np.asarray(poses[1]))
