@@ -344,54 +344,14 @@ def sequence_names(sequences: Sequence[str]) -> list[str]:
     return out
 
 
-@dataclass
-class Traj:
-    """A trajectory: timestamps (N,) seconds and poses T_world_cam (N, 4, 4)."""
-    timestamps: np.ndarray
-    poses: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.timestamps)
-
-
-def _as_traj(obj) -> Traj:
-    poses = getattr(obj, "poses_T_world_cam", None)
-    if poses is None:
-        poses = obj.poses
-    return Traj(np.asarray(obj.timestamps, float), np.asarray(poses, float))
-
-
-def read_tum(path: str | os.PathLike) -> Traj:
-    """Read a TUM trajectory (``lite_vo.io.read_trajectory`` when available)."""
-    path = Path(path)
-    try:
-        from .io import read_trajectory  # type: ignore[attr-defined]
-    except ImportError:
-        read_trajectory = None
-    if read_trajectory is not None:
-        return _as_traj(read_trajectory(path))
-    from .geometry import pose_from_tum  # fallback while lite_vo.io is being written
-    rows = [ln.split() for ln in path.read_text().splitlines()
-            if ln.strip() and not ln.lstrip().startswith("#")]
-    arr = np.array(rows, dtype=float).reshape(-1, 8)
-    poses = pose_from_tum(arr[:, 1:]) if len(arr) else np.zeros((0, 4, 4))
-    return Traj(arr[:, 0], np.asarray(poses).reshape(-1, 4, 4))
-
-
 def load_groundtruth(sequence: str | os.PathLike):
-    """Ground truth of a sequence: ``groundtruth.txt`` in the folder, else ``open_sequence(...).groundtruth``.
-
-    Returns the object as given by ``lite_vo.io`` (or a :class:`Traj`), or None when there is none.
-    """
+    """Ground truth of a sequence (a :class:`lite_vo.io.Trajectory`): ``groundtruth.txt`` in the
+    folder, else ``open_sequence(...).groundtruth`` (None when there is none)."""
+    from .io import open_sequence, read_trajectory
     p = Path(sequence)
     gt_file = p / "groundtruth.txt"
     if gt_file.is_file():
-        try:
-            from .io import read_trajectory  # type: ignore[attr-defined]
-            return read_trajectory(gt_file)
-        except ImportError:
-            return read_tum(gt_file)
-    from . import open_sequence
+        return read_trajectory(gt_file)
     return open_sequence(p).groundtruth
 
 
@@ -424,22 +384,7 @@ def frame_timestamps(sequence: str | os.PathLike) -> np.ndarray:
     return np.asarray([fr.timestamp for fr in seq], float)
 
 
-def associate(t_a: np.ndarray, t_b: np.ndarray, max_dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest-timestamp matching: index pairs (ia, ib) with |t_a[ia] - t_b[ib]| <= max_dt."""
-    t_a, t_b = np.asarray(t_a, float), np.asarray(t_b, float)
-    if len(t_a) == 0 or len(t_b) == 0:
-        return np.zeros(0, int), np.zeros(0, int)
-    order = np.argsort(t_b)
-    tb = t_b[order]
-    j = np.clip(np.searchsorted(tb, t_a), 1, len(tb) - 1) if len(tb) > 1 else np.zeros(len(t_a), int)
-    if len(tb) > 1:
-        left_better = np.abs(t_a - tb[j - 1]) <= np.abs(t_a - tb[j])
-        j = np.where(left_better, j - 1, j)
-    ok = np.abs(t_a - tb[j]) <= max_dt
-    return np.nonzero(ok)[0], order[j[ok]]
-
-
-def relative_drift(gt: Traj, est: Traj, scale: float = 1.0, window_s: float | None = INIT_ERROR_WINDOW_S,
+def relative_drift(gt, est, scale: float = 1.0, window_s: float | None = INIT_ERROR_WINDOW_S,
                    window_frames: int | None = None, min_motion_m: float = 1e-3,
                    max_dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Relative translational drift over a window, per estimated pose (thesis Fig. 5.8).
@@ -450,11 +395,12 @@ def relative_drift(gt: Traj, est: Traj, scale: float = 1.0, window_s: float | No
     Returns (time since the first estimated pose, error); pairs whose ground-truth motion is
     below ``min_motion_m`` are skipped (no meaningful relative error).
     """
+    from .eval import associate
     from .geometry import inverse_se3
     if len(est) < 2 or len(gt) < 2:
         return np.zeros(0), np.zeros(0)
     if max_dt is None:
-        dt = np.diff(np.sort(est.timestamps))
+        dt = np.diff(est.timestamps)
         max_dt = max(0.02, 0.5 * float(np.median(dt))) if len(dt) else 0.02
     ie, ig = associate(est.timestamps, gt.timestamps, max_dt)
     if len(ie) < 2:
@@ -595,8 +541,9 @@ def collect_run(spec: RunSpec, outcome: RunOutcome, gt=None, evaluator: Callable
     rec["depth_series"] = depth_error_series(run_json, spec.out_dir)
     metric = run_is_metric(run_json, spec.sequence)
     rec["metric"] = metric
+    from .io import read_trajectory
     try:
-        est = read_tum(spec.out_dir / "trajectory.txt")
+        est = read_trajectory(spec.out_dir / "trajectory.txt")
     except Exception as err:  # noqa: BLE001
         return crash(f"unreadable trajectory.txt: {err}")
     rec["poses"] = len(est)
@@ -776,16 +723,16 @@ def judge_init_run(rec: dict, gt, depth_at_s: float = INIT_DEPTH_AT_S,
         out["depth_error"] = float(rec["depth_accuracy"]["median_abs_rel_error"])
         out["depth_error_at_s"] = "end"
     scale = float((rec.get("eval") or {}).get("scale") or 1.0)
+    from .io import read_trajectory
     try:
-        est = read_tum(Path(rec["dir"]) / "trajectory.txt")
-        gtt = _as_traj(gt) if gt is not None and not isinstance(gt, Traj) else gt
+        est = read_trajectory(Path(rec["dir"]) / "trajectory.txt")
     except Exception:  # noqa: BLE001
-        est, gtt = None, None
-    if est is not None and gtt is not None and len(est) > drift_frames:
-        _, e = relative_drift(gtt, est, scale, window_frames=drift_frames)
+        est = None
+    if est is not None and gt is not None and len(est) > drift_frames:
+        _, e = relative_drift(gt, est, scale, window_frames=drift_frames)
         if len(e):
             out["final_drift"] = float(e[-1])
-        ts, es = relative_drift(gtt, est, scale, window_s=window_s)
+        ts, es = relative_drift(gt, est, scale, window_s=window_s)
         out["drift_series"] = {"t": ts.tolist(), "error": es.tolist()}
     reasons = []
     if out["depth_error"] is None:

@@ -18,7 +18,9 @@ import pytest
 from lite_vo import profiler as P
 from lite_vo import profiler_report as R
 from lite_vo.errors import InputError
+from lite_vo.eval import associate
 from lite_vo.geometry import exp_se3, tum_from_pose
+from lite_vo.io import Trajectory
 from lite_vo.warmup import warmup
 
 FPS = 30.0
@@ -140,9 +142,8 @@ class FakeEvaluator:
 
     def __call__(self, gt, est, align="sim3", delta_s=1.0):
         self.aligns.append(align)
-        g = P._as_traj(gt) if not isinstance(gt, P.Traj) else gt
-        ig, ie = P.associate(g.timestamps, est.timestamps, 0.01)
-        pg, pe = g.poses[ig, :3, 3], est.poses[ie, :3, 3]
+        ig, ie = associate(gt.timestamps, est.timestamps, 0.01)
+        pg, pe = gt.poses[ig, :3, 3], est.poses[ie, :3, 3]
         scale = 1.0
         if align == "sim3":
             scale = float(np.linalg.norm(np.diff(pg, axis=0), axis=1).sum()
@@ -338,12 +339,13 @@ def test_subprocess_runner_reports_a_crash_with_its_last_stderr_line(tmp_path, m
 
 def test_associate_and_relative_drift():
     t, poses = gt_poses(120)
-    gt = P.Traj(t, poses)
-    ia, ib = P.associate(t[::2] + 0.001, t, 0.005)
+    gt = Trajectory(t, poses)
+    ia, ib = associate(t[::2] + 0.001, t, 0.005)
     assert np.array_equal(ib, np.arange(0, 120, 2)) and len(ia) == 60
-    assert len(P.associate(t + 0.5, t[:10], 0.01)[0]) == 0
-    est = P.Traj(t.copy(), poses.copy())
-    est.poses[:, :3, 3] *= 0.5
+    assert len(associate(t + 0.5, t[:10], 0.01)[0]) == 0
+    half = poses.copy()
+    half[:, :3, 3] *= 0.5
+    est = Trajectory(t, half)
     ts, e = P.relative_drift(gt, est, scale=2.0)
     assert len(e) > 50 and np.allclose(e, 0.0, atol=1e-9) and ts[0] == pytest.approx(0.5, abs=0.02)
     _, e_wrong = P.relative_drift(gt, est, scale=1.0, window_frames=15)
