@@ -116,3 +116,12 @@ def raycast_depth(T_world_cam, K, width, height, boxes=(), floor_z=0.0):
         label[hitb] = 2 + i
     depth = np.where(np.isfinite(t_best), t_best, 0.0)
     return depth, label
+
+
+def idepth_from_depth(depth, rng=None, drop=0.0):
+    """Inverse depth of a ray-cast depth map (NaN where no hit); with ``rng``, a ``drop`` fraction
+    of the pixels is emptied at random (a semi-dense map)."""
+    idepth = np.where(depth > 0, 1 / np.where(depth > 0, depth, 1), np.nan)
+    if rng is not None:
+        idepth[rng.random(idepth.shape) < drop] = np.nan
+    return idepth

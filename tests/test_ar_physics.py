@@ -12,7 +12,7 @@ from ar_demo.mesh import grid_faces
 from ar_demo.physics import PhysicsFrame, PhysicsWorld
 from ar_demo.world_model import AsyncWorldModelBuilder, build_world_model
 from lite_vo.camera import PinholeIntrinsics
-from naive_ar import look_at, raycast_depth
+from naive_ar import idepth_from_depth, look_at, raycast_depth
 
 INTR = PinholeIntrinsics(260.0, 260.0, 159.5, 119.5, 320, 240)
 BOX = (1.9, -0.45, 0.0, 2.5, 0.35, 0.4)
@@ -58,26 +58,32 @@ def test_car_rests_on_flat_mesh(scale):
         w.close()
 
 
-def _box_world_model(cfg, rng):
+def _box_physics(cfg, rng):
+    """PhysicsWorld on the world model of a semi-dense view of the box; also the box front x and
+    the box centre (physics units)."""
     T = look_at([0.0, 0.1, 1.0], [2.2, 0.0, 0.0])
     depth, label = raycast_depth(T, INTR.K, 320, 240, boxes=[BOX])
-    idepth = np.where(depth > 0, 1 / np.where(depth > 0, depth, 1), np.nan)
-    idepth[rng.random(idepth.shape) < 0.9] = np.nan
+    idepth = idepth_from_depth(depth, rng, 0.9)
     var = 1e-4 * np.nan_to_num(idepth) ** 2 + 1e-8
     ground = GroundPlane(np.array([0.0, 0.0, 1.0]), 0.0)
-    return T, ground, build_world_model(idepth, var, INTR, T, ground, cfg)
-
-
-def test_car_driven_at_box_stops_or_deflects():
-    cfg = ARConfig()
-    T, ground, model = _box_world_model(cfg, np.random.default_rng(0))
+    model = build_world_model(idepth, var, INTR, T, ground, cfg)
     frame = PhysicsFrame.from_ground(ground.normal_world, ground.height, T, 1.0)
     w = PhysicsWorld(cfg, frame)
     try:
         w.set_world_mesh(model.mesh.vertices_world, model.mesh.faces)
-        box_front = frame.to_phys(np.array([[BOX[0], 0.0, 0.0]]))[0, 0]
+    except BaseException:
+        w.close()
+        raise
+    box_front = frame.to_phys(np.array([[BOX[0], 0.0, 0.0]]))[0, 0]
+    centre = frame.to_phys(np.array([[(BOX[0] + BOX[3]) / 2, (BOX[1] + BOX[4]) / 2, 0.0]]))[0]
+    return w, box_front, centre
+
+
+def test_car_driven_at_box_stops_or_deflects():
+    cfg = ARConfig()
+    w, box_front, centre = _box_physics(cfg, np.random.default_rng(0))
+    try:
         # drive straight at the box centre, full throttle, no autopilot
-        centre = frame.to_phys(np.array([[(BOX[0] + BOX[3]) / 2, (BOX[1] + BOX[4]) / 2, 0.0]]))[0]
         start = np.array([box_front - 0.9, centre[1]])
         w.spawn_car(start, 0.0)
         xs, ys = [], []
@@ -98,13 +104,8 @@ def test_car_driven_at_box_stops_or_deflects():
 
 def test_autopilot_reverses_when_blocked():
     cfg = ARConfig()
-    T, ground, model = _box_world_model(cfg, np.random.default_rng(1))
-    frame = PhysicsFrame.from_ground(ground.normal_world, ground.height, T, 1.0)
-    w = PhysicsWorld(cfg, frame)
+    w, box_front, centre = _box_physics(cfg, np.random.default_rng(1))
     try:
-        w.set_world_mesh(model.mesh.vertices_world, model.mesh.faces)
-        box_front = frame.to_phys(np.array([[BOX[0], 0.0, 0.0]]))[0, 0]
-        centre = frame.to_phys(np.array([[(BOX[0] + BOX[3]) / 2, (BOX[1] + BOX[4]) / 2, 0.0]]))[0]
         w.spawn_car([box_front - 0.6, centre[1]], 0.0)
         target = centre[:2]                                # keeps steering into the box
         for _ in range(180):
@@ -142,8 +143,7 @@ def test_async_builder_matches_sync():
     rng = np.random.default_rng(2)
     T = look_at([0.0, 0.1, 1.0], [2.2, 0.0, 0.0])
     depth, _ = raycast_depth(T, INTR.K, 320, 240, boxes=[BOX])
-    idepth = np.where(depth > 0, 1 / np.where(depth > 0, depth, 1), np.nan)
-    idepth[rng.random(idepth.shape) < 0.9] = np.nan
+    idepth = idepth_from_depth(depth, rng, 0.9)
     var = np.full(idepth.shape, 1e-4)
     ground = GroundPlane(np.array([0.0, 0.0, 1.0]), 0.0)
     b = AsyncWorldModelBuilder(cfg, ground)

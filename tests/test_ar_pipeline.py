@@ -144,12 +144,12 @@ def test_sink_resets_world_on_monocular_reinit(egl, tmp_path):
 
     from ar_demo.pipeline import ARSink
     from lite_vo.camera import PinholeIntrinsics
-    from naive_ar import look_at, raycast_depth
+    from naive_ar import idepth_from_depth, look_at, raycast_depth
 
     intr = PinholeIntrinsics(120.0, 120.0, 79.5, 59.5, 160, 120)
     T = look_at([0.0, 0.0, 1.0], [2.0, 0.0, 0.0])
     depth, _ = raycast_depth(T, intr.K, 160, 120, boxes=[(1.5, -0.3, 0, 1.9, 0.3, 0.3)])
-    idepth = np.where(depth > 0, 1 / np.where(depth > 0, depth, 1), np.nan)
+    idepth = idepth_from_depth(depth)
     var = np.full(idepth.shape, 1e-4)
     sink = ARSink(_cfg(start_after_monocular_s=0.0, ground_min_support=50), intr, tmp_path / "s.mp4", fps=10)
     image = np.full((120, 160), 100.0, np.float32)

@@ -12,7 +12,7 @@ from ar_demo.inpaint import inpaint, reduce_idepth
 from ar_demo.mesh import grid_faces, grid_mesh
 from lite_vo.camera import PinholeIntrinsics
 from lite_vo.errors import ConfigError
-from naive_ar import (energy_naive, gradient_naive, inpaint_naive, look_at, raycast_depth,
+from naive_ar import (energy_naive, gradient_naive, idepth_from_depth, inpaint_naive, look_at, raycast_depth,
                       reduce_idepth_naive)
 
 INTR = PinholeIntrinsics(260.0, 260.0, 159.5, 119.5, 320, 240)
@@ -148,8 +148,7 @@ def test_ground_plane_from_imu_and_depth(roll):
     rng = np.random.default_rng(4)
     T = _camera(roll)
     depth, label = raycast_depth(T, INTR.K, 320, 240, boxes=[BOX])
-    idepth = np.where(depth > 0, 1 / np.where(depth > 0, depth, 1), np.nan)
-    idepth[rng.random(idepth.shape) < 0.85] = np.nan         # semi-dense
+    idepth = idepth_from_depth(depth, rng, 0.85)         # semi-dense
     idepth *= 1 + rng.normal(0, 0.003, idepth.shape)         # noisy
     points = map_points_world(idepth, INTR, T)
     acc_cam = (T[:3, :3].T @ np.array([0, 0, 9.81]))[None] + rng.normal(0, 0.2, (200, 3))
@@ -167,8 +166,7 @@ def test_ground_plane_imu_only_when_refinement_disabled():
     rng = np.random.default_rng(4)
     T = _camera(5.0)
     depth, _ = raycast_depth(T, INTR.K, 320, 240, boxes=[BOX])
-    idepth = np.where(depth > 0, 1 / np.where(depth > 0, depth, 1), np.nan)
-    idepth[rng.random(idepth.shape) < 0.85] = np.nan
+    idepth = idepth_from_depth(depth, rng, 0.85)
     up = np.array([0.0, np.sin(np.deg2rad(0.5)), np.cos(np.deg2rad(0.5))])
     gp = estimate_ground_plane(map_points_world(idepth, INTR, T), ARConfig(ground_refine_max_deg=0.0),
                                up_world=up, T_world_cam0=T)
@@ -197,8 +195,7 @@ def test_ground_plane_ransac_fallback_without_imu():
     rng = np.random.default_rng(6)
     T = _camera(8.0)
     depth, _ = raycast_depth(T, INTR.K, 320, 240, boxes=[BOX])
-    idepth = np.where(depth > 0, 1 / np.where(depth > 0, depth, 1), np.nan)
-    idepth[rng.random(idepth.shape) < 0.9] = np.nan
+    idepth = idepth_from_depth(depth, rng, 0.9)
     idepth *= 1 + rng.normal(0, 0.002, idepth.shape)
     gp = estimate_ground_plane(map_points_world(idepth, INTR, T), ARConfig(), up_world=None, T_world_cam0=T)
     assert gp.source == "ransac"
@@ -223,7 +220,7 @@ def test_inpainting_recovers_piecewise_planar_depth():
     T = _camera()
     cfg = ARConfig()
     depth, label = raycast_depth(T, INTR.K, 320, 240, boxes=[BOX])
-    idepth = np.where(depth > 0, 1 / np.where(depth > 0, depth, 1), np.nan)
+    idepth = idepth_from_depth(depth)
     semi = idepth.copy()
     keep = rng.random(semi.shape) < 0.05
     keep[label == 0] = False
