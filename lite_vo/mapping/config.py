@@ -73,4 +73,3 @@ class MappingConfig:
     # scheduling
     budget_ms: float = param(0.0, "time budget per mapping iteration; limits stereo updates when > 0", 0.0, 10000.0)
     buffer_size: int = param(12, "past frames kept as stereo references", 1, 200)
-    normalize_scale: bool = param(False, "rescale the map so that the mean inverse depth is 1 (monocular)")
