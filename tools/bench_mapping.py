@@ -107,7 +107,7 @@ def main(argv=None) -> int:
         K, frames, _ = drv._frames_synth(args.synth, args.frames, args.width, 0, 0.0)
         name = f"synth_{args.synth}"
     else:
-        K, frames, _ = drv._frames_direct(Path(args.sequence), args.width)
+        K, frames, _ = drv._frames_io(Path(args.sequence), args.width)
         name = Path(args.sequence).name
     frames = [f for _, f in zip(range(args.frames), frames) if f[4] is not None]
     warmup()

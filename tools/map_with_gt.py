@@ -42,59 +42,6 @@ def _parse_value(text: str):
         return text
 
 
-def _read_tum_list(path: Path) -> list[tuple[float, str]]:
-    out = []
-    for line in path.read_text().splitlines():
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.split()
-        out.append((float(parts[0]), " ".join(parts[1:])))
-    return out
-
-
-def _frames_direct(seq_dir: Path, map_width: int):
-    """ICL/TUM folder with calib.txt, read without lite_vo.io (fallback)."""
-    import cv2
-
-    from lite_vo.camera import PinholeIntrinsics
-    from lite_vo.geometry import pose_from_tum
-    lines = [ln.split("#")[0].split() for ln in (seq_dir / "calib.txt").read_text().splitlines()]
-    lines = [ln for ln in lines if ln]
-    fx, fy, cx, cy = map(float, lines[0][:4])
-    w, h = int(lines[1][0]), int(lines[1][1])
-    scale = 5000.0
-    for ln in lines[2:]:
-        if ln[0] == "depth_scale":
-            scale = float(ln[1])
-    K0 = PinholeIntrinsics(fx, fy, cx, cy, w, h)
-    mh = int(round(h * map_width / w))
-    K = K0.scaled(map_width, mh)
-    rgb = _read_tum_list(seq_dir / "rgb.txt")
-    dep = dict(_read_tum_list(seq_dir / "depth.txt")) if (seq_dir / "depth.txt").exists() else {}
-    dep_ts = np.array(sorted(dep)) if dep else np.zeros(0)
-    gt = []
-    for line in (seq_dir / "groundtruth.txt").read_text().splitlines():
-        if line.strip() and not line.startswith("#"):
-            gt.append([float(v) for v in line.split()])
-    gt = np.array(gt)
-
-    def frames():
-        for i, (ts, name) in enumerate(rgb):
-            img = cv2.imread(str(seq_dir / name), cv2.IMREAD_GRAYSCALE)
-            img = cv2.resize(img, (map_width, mh), interpolation=cv2.INTER_AREA).astype(np.float32)
-            depth = None
-            if len(dep_ts):
-                j = int(np.argmin(np.abs(dep_ts - ts)))
-                if abs(dep_ts[j] - ts) < 0.02:
-                    d = cv2.imread(str(seq_dir / dep[dep_ts[j]]), cv2.IMREAD_UNCHANGED).astype(np.float32) / scale
-                    depth = cv2.resize(d, (map_width, mh), interpolation=cv2.INTER_NEAREST)
-            k = int(np.argmin(np.abs(gt[:, 0] - ts)))
-            T = pose_from_tum(gt[k, 1:8]) if abs(gt[k, 0] - ts) < 0.02 else None
-            yield i, ts, img, depth, T
-    return K, frames(), len(rgb)
-
-
 def _frames_io(seq_dir: Path, map_width: int):
     """Through lite_vo.open_sequence + the camera's rectifier (the system's path)."""
     import lite_vo
@@ -143,14 +90,7 @@ def run(args) -> dict:
         name = f"synth_{args.synth}"
     else:
         seq_dir = Path(args.sequence)
-        try:
-            if args.direct:
-                raise ImportError
-            K, frames, n = _frames_io(seq_dir, args.width)
-        except Exception as err:  # io layer not available: read the folder directly
-            if not args.direct:
-                print(f"(lite_vo.open_sequence unavailable: {err!r}; reading the folder directly)", file=sys.stderr)
-            K, frames, n = _frames_direct(seq_dir, args.width)
+        K, frames, n = _frames_io(seq_dir, args.width)
         name = seq_dir.name
     mapper = Mapper(cfg, K, seed=args.seed)
     rows = []
@@ -256,7 +196,6 @@ def main(argv=None) -> int:
     ap.add_argument("--set", action="append", help="MappingConfig override key=value")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=0, help="numba threads (0 = default)")
-    ap.add_argument("--direct", action="store_true", help="read the folder directly (no lite_vo.io)")
     ap.add_argument("--json", default=None)
     ap.add_argument("--plot", default=None)
     ap.add_argument("-v", "--verbose", action="store_true")
