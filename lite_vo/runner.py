@@ -77,21 +77,14 @@ class _Progress:
 
 
 def _gt_lookup(seq, max_dt: float = 0.02):
+    """``t -> T_world_cam`` of the ground-truth pose nearest ``t`` (None when none within max_dt)."""
     gt = seq.groundtruth
     if gt is None:
         raise InputError(f"{seq.name}: --poses gt needs ground truth, the sequence has none")
-    ts = np.asarray(gt.timestamps, dtype=np.float64)
-    poses = np.asarray(gt.poses, dtype=np.float64)
 
     def lookup(t: float):
-        i = int(np.searchsorted(ts, t))
-        best = None
-        for j in (i - 1, i):
-            if 0 <= j < len(ts) and (best is None or abs(ts[j] - t) < abs(ts[best] - t)):
-                best = j
-        if best is None or abs(ts[best] - t) > max_dt:
-            return None
-        return poses[best]
+        i = gt.nearest(t, max_dt)
+        return None if i is None else gt.poses[i]
     return lookup
 
 
