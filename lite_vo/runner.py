@@ -187,8 +187,6 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
     from .io import Trajectory, open_sequence, prepare_output_dir, write_ply, write_trajectory
 
     seq = open_sequence(sequence) if isinstance(sequence, (str, Path, int)) else sequence
-    if out_dir is not None:
-        prepare_output_dir(Path(out_dir), force, clean=RUN_OUTPUTS)
     if depth_source == "images" and not seq.has_depth:
         raise InputError(f"{seq.name}: --depth images needs depth images, the sequence has none")
     if config.system.init == "depth" and not seq.has_depth:
@@ -204,6 +202,8 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
         raise InputError(f"{seq.name}: --start-frame {start_frame} is past the last frame ({len(seq)} frames)")
     if max_frames is not None and total is not None:
         total = min(total, max_frames)
+    if out_dir is not None:  # only once the input is known to be usable
+        prepare_output_dir(Path(out_dir), force, clean=RUN_OUTPUTS)
     # load (or compile) the kernels before the clock starts, so the first frame's timing is honest
     from .warmup import warmup
     t_warm = time.perf_counter()

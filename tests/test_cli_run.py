@@ -77,3 +77,14 @@ def test_console_script_help_lists_commands():
     out = subprocess.run([sys.executable, "-m", "lite_vo.cli.main", "--help"], capture_output=True, text=True, check=True).stdout
     for cmd in ("run", "eval", "synth", "profile", "warmup"):
         assert cmd in out
+
+
+def test_rejected_input_leaves_previous_results_alone(synth_small, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["run", str(synth_small), "--out", str(out), "--max-frames", "3", "--quiet"]) == 0
+    before = (out / "trajectory.txt").read_text()
+    assert main(["run", str(synth_small), "--out", str(out), "--start-frame", "1000", "--force", "--quiet"]) == 1
+    assert (out / "trajectory.txt").read_text() == before
+    fresh = tmp_path / "fresh"
+    assert main(["run", str(synth_small), "--out", str(fresh), "--start-frame", "1000", "--quiet"]) == 1
+    assert not fresh.exists()
