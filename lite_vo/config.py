@@ -84,9 +84,6 @@ class VOConfig:
     system: SystemConfig = _default("system")
     name: str = "default"
 
-    def replace(self, **sections) -> "VOConfig":
-        return dataclasses.replace(self, **sections)
-
     def to_dict(self) -> dict:
         return {s: dataclasses.asdict(getattr(self, s)) for s in _section_types()} | {"name": self.name}
 
