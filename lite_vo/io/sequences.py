@@ -19,11 +19,11 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
-from ..geometry import make_pose, pose_from_tum, rotmat_from_quat_xyzw
+from ..geometry import make_pose, rotmat_from_quat_xyzw
 from ._text import check_increasing, parse_table, read_lines
 from .calib import (TUM_DEPTH_SCALE, Calibration, freiburg_camera, freiburg_number, read_calib_txt,
                     read_euroc_camera_yaml, parse_simple_yaml, yaml_matrix4)
-from .trajectory import parse_tum_rows
+from .trajectory import read_trajectory
 from .types import Accelerometer, Frame, Trajectory
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
@@ -336,13 +336,6 @@ def _read_accelerometer_txt(path: Path) -> Accelerometer:
     return Accelerometer(arr[:, 0], arr[:, 1:4])
 
 
-def _read_tum_groundtruth(path: Path) -> Trajectory:
-    t, rows, _ = parse_tum_rows(path, "ground truth file")
-    if len(t) == 0:
-        raise InputError(f"{path}: contains no poses")
-    return Trajectory(t, pose_from_tum(rows))
-
-
 def _load_calibration(calib) -> Calibration:
     if isinstance(calib, Calibration):
         return calib
@@ -379,7 +372,7 @@ def open_tum(folder: Path, calib=None, depth_max_dt: float = DEFAULT_DEPTH_MAX_D
     depth_scale = cal.depth_scale if cal.depth_scale is not None else TUM_DEPTH_SCALE
     seq = TumSequence(name, cal.camera, folder, t_rgb, rgb, depth_paths, depth_scale)
     if (folder / "groundtruth.txt").is_file():
-        seq.groundtruth = _read_tum_groundtruth(folder / "groundtruth.txt")
+        seq.groundtruth = read_trajectory(folder / "groundtruth.txt", "ground truth file")
     if (folder / "accelerometer.txt").is_file():
         seq.accelerometer = _read_accelerometer_txt(folder / "accelerometer.txt")
     _imread_grey(rgb[0], cal.camera)  # fail early on a wrong calibration or unreadable images
@@ -466,7 +459,7 @@ def open_image_folder(folder: Path, calib=None, fps: Optional[float] = None) -> 
         t = np.arange(len(files)) / f
     seq = ImageFolderSequence(folder.name, cal.camera, folder, t, files)
     if (folder / "groundtruth.txt").is_file():
-        seq.groundtruth = _read_tum_groundtruth(folder / "groundtruth.txt")
+        seq.groundtruth = read_trajectory(folder / "groundtruth.txt", "ground truth file")
     _imread_grey(files[0], cal.camera)
     return seq
 

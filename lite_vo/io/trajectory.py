@@ -17,8 +17,8 @@ from .types import Trajectory
 TUM_HEADER = "timestamp tx ty tz qx qy qz qw"
 
 
-def parse_tum_rows(path: Path, what: str = "trajectory file") -> tuple[np.ndarray, np.ndarray, list[int]]:
-    """(timestamps (N,), rows (N, 7) ``tx ty tz qx qy qz qw``, line numbers) of a TUM pose file."""
+def parse_tum_rows(path: Path, what: str = "trajectory file") -> tuple[np.ndarray, np.ndarray]:
+    """(timestamps (N,), rows (N, 7) ``tx ty tz qx qy qz qw``) of a TUM pose file."""
     ts, rows, numbers = [], [], []
     for n, s in read_lines(path, what):
         f = s.replace(",", " ").split()
@@ -39,7 +39,7 @@ def parse_tum_rows(path: Path, what: str = "trajectory file") -> tuple[np.ndarra
         numbers.append(n)
     t = np.asarray(ts, dtype=np.float64)
     check_increasing(path, t, numbers)
-    return t, np.asarray(rows, dtype=np.float64).reshape(-1, 7), numbers
+    return t, np.asarray(rows, dtype=np.float64).reshape(-1, 7)
 
 
 def _is_float(x: str) -> bool:
@@ -50,12 +50,13 @@ def _is_float(x: str) -> bool:
         return False
 
 
-def read_trajectory(path: str | os.PathLike) -> Trajectory:
-    """Read a TUM trajectory file (``timestamp tx ty tz qx qy qz qw`` per line, T_world_cam)."""
+def read_trajectory(path: str | os.PathLike, what: str = "trajectory file") -> Trajectory:
+    """Read a TUM trajectory file (``timestamp tx ty tz qx qy qz qw`` per line, T_world_cam);
+    ``what`` names the file in error messages (e.g. "ground truth file")."""
     path = Path(path)
-    t, rows, _ = parse_tum_rows(path)
+    t, rows = parse_tum_rows(path, what)
     if len(t) == 0:
-        raise InputError(f"{path}: trajectory file contains no poses")
+        raise InputError(f"{path}: {what} contains no poses")
     return Trajectory(t, pose_from_tum(rows))
 
 
