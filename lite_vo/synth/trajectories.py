@@ -17,7 +17,7 @@ Trajectories (per scene, randomised a little by the seed):
   pitched down, with a step bob; at the desk a slow approach towards the desk (forward during the
   first 10 s, then back).
 
-World frame: z up, floor z = 0 (see :mod:`lite_vo.synth.scenes`). Imports numpy only.
+World frame: z up, floor z = 0 (see :mod:`lite_vo.synth.scenes`). Imports numpy and lite_vo.geometry only.
 """
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..geometry import make_pose
 
 TRAJECTORIES = ("handheld", "fast", "rotation", "forward")
 """Names accepted by :func:`make_trajectory`."""
@@ -114,12 +115,7 @@ class Motion:
 
     def poses(self, t: np.ndarray) -> np.ndarray:
         """T_world_cam (N, 4, 4) at times ``t`` (N,)."""
-        t = np.asarray(t, dtype=np.float64)
-        T = np.zeros((t.shape[0], 4, 4))
-        T[:, :3, :3] = self.rotations(t)
-        T[:, :3, 3] = self.positions(t)
-        T[:, 3, 3] = 1.0
-        return T
+        return make_pose(self.rotations(t), self.positions(t))
 
     def specific_force_cam(self, t: np.ndarray, gravity_world=(0.0, 0.0, -9.81)) -> np.ndarray:
         """Accelerometer reading (N, 3) in the camera frame: ``R_world_cam^T (a_world - g)``."""
