@@ -59,12 +59,11 @@ def _load_est(spec: str):
 
 def run(args) -> int:
     import json
-    import os
     from pathlib import Path
 
     from ..errors import InputError
     from ..eval import evaluate
-    from ..io import check_output_file
+    from ..io import check_output_file, write_file_atomic
     out = Path(args.json) if args.json else None
     if out is not None:
         check_output_file(out, args.force)
@@ -78,7 +77,5 @@ def run(args) -> int:
         d = res.to_dict()
         d["gt"] = str(args.gt)
         d["est"] = str(args.est)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(json.dumps(d, indent=2) + "\n", encoding="utf-8")
-        os.replace(tmp, out)
+        write_file_atomic(out, json.dumps(d, indent=2) + "\n")
     return 0

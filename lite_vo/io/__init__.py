@@ -5,7 +5,7 @@ May import numpy, cv2 (lazily), ``lite_vo.camera``, ``lite_vo.geometry``, ``lite
 never the tracking, mapping, system or CLI modules.
 """
 from .calib import Calibration, freiburg_camera, read_calib_txt, read_euroc_camera_yaml, write_calib_txt
-from .outputs import check_output_file, prepare_output_dir
+from .outputs import check_output_file, prepare_output_dir, write_file_atomic
 from .ply import read_ply, write_ply
 from .sequences import (EurocSequence, FileSequence, ImageFolderSequence, LiveCameraSequence, Sequence,
                         TumSequence, VideoSequence, associate_nearest, open_sequence)
@@ -15,6 +15,6 @@ from .types import Accelerometer, Frame, Trajectory
 __all__ = [
     "open_sequence", "Sequence", "FileSequence", "TumSequence", "EurocSequence", "ImageFolderSequence",
     "VideoSequence", "LiveCameraSequence", "Frame", "Trajectory", "Accelerometer",
-    "read_trajectory", "write_trajectory", "write_ply", "read_ply", "prepare_output_dir", "check_output_file",
+    "read_trajectory", "write_trajectory", "write_ply", "read_ply", "prepare_output_dir", "check_output_file", "write_file_atomic",
     "Calibration", "read_calib_txt", "write_calib_txt", "read_euroc_camera_yaml", "freiburg_camera", "associate_nearest",
 ]

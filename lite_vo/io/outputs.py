@@ -2,6 +2,7 @@
 ``--force``. One place for the check and its one-line messages."""
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 from typing import Iterable
@@ -36,3 +37,12 @@ def check_output_file(path, force: bool) -> None:
     path = Path(path)
     if path.exists() and not force:
         raise InputError(f"{path}: already exists (use --force to overwrite)")
+
+
+def write_file_atomic(path, data: str | bytes) -> None:
+    """Write ``data`` (text as UTF-8) to ``<name>.tmp`` beside ``path`` and rename it over ``path``,
+    so nobody ever reads a half-written file."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
+    os.replace(tmp, path)

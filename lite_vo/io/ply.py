@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .outputs import write_file_atomic
 
 _PLY_TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8", "uchar": "u1",
               "uint8": "u1", "int": "<i4", "int32": "<i4", "uint": "<u4", "short": "<i2", "ushort": "<u2",
@@ -55,16 +56,12 @@ def write_ply(path: str | os.PathLike, points_xyz, idepth_var=None, colors=None,
               "comment lite_vo semi-dense map", f"element vertex {n}"]
     header += [f"property {names[t]} {name}" for name, t in fields]
     header.append("end_header")
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(("\n".join(header) + "\n").encode("ascii"))
-        if binary:
-            fh.write(arr.tobytes())
-        else:
-            for row in arr:
-                fh.write((" ".join(f"{v:.7g}" if isinstance(v, np.floating) else str(int(v)) for v in row)
-                          + "\n").encode("ascii"))
-    os.replace(tmp, path)
+    if binary:
+        body = arr.tobytes()
+    else:
+        body = "".join(" ".join(f"{v:.7g}" if isinstance(v, np.floating) else str(int(v)) for v in row) + "\n"
+                       for row in arr).encode("ascii")
+    write_file_atomic(path, ("\n".join(header) + "\n").encode("ascii") + body)
 
 
 def read_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:

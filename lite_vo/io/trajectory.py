@@ -12,6 +12,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import pose_from_tum, tum_from_pose
 from ._text import check_increasing, read_lines
+from .outputs import write_file_atomic
 from .types import Trajectory
 
 TUM_HEADER = "timestamp tx ty tz qx qy qz qw"
@@ -69,6 +70,4 @@ def write_trajectory(path: str | os.PathLike, traj: Trajectory, comment: str | N
         lines += ["# " + c for c in str(comment).splitlines()]
     for t, r in zip(traj.timestamps, rows):
         lines.append(f"{t:.6f} {r[0]:.9g} {r[1]:.9g} {r[2]:.9g} {r[3]:.9f} {r[4]:.9f} {r[5]:.9f} {r[6]:.9f}")
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    write_file_atomic(path, "\n".join(lines) + "\n")
