@@ -248,10 +248,6 @@ class Camera:
         xd = np.stack([(uv[..., 0] - i.cx) / i.fx, (uv[..., 1] - i.cy) / i.fy], axis=-1)
         return self.undistort(xd)
 
-    def rectified_intrinsics(self, map_width: int, multiple_of: int = 16) -> PinholeIntrinsics:
-        """The pinhole camera of :meth:`rectifier` (see there) without building the maps."""
-        return _rectified_pinhole(self, map_width, multiple_of)[0]
-
     def rectifier(self, map_width: int, multiple_of: int = 16) -> "Rectifier":
         """Undistort + resize to ``map_width`` keeping the aspect ratio, with an explicit centre crop
         so both output dimensions are multiples of ``multiple_of``. See :class:`Rectifier`."""
@@ -350,13 +346,11 @@ class Rectifier:
     def __init__(self, camera: Camera, map_width: int, multiple_of: int = 16):
         import cv2
         self.camera = camera
-        self.multiple_of = int(multiple_of)
         self.intrinsics, self.uncropped_size, self.factor = _rectified_pinhole(camera, map_width, multiple_of)
         out, k = self.intrinsics, self.factor
         # intermediate (k times supersampled) pinhole whose k x k box average is `out`
         mid = PinholeIntrinsics(out.fx * k, out.fy * k, (out.cx + 0.5) * k - 0.5, (out.cy + 0.5) * k - 0.5,
                                 out.width * k, out.height * k)
-        self._mid = mid
         mx, my = self._source_coords(mid)
         nat = camera.intrinsics
         self._identity = (mid.width == nat.width and mid.height == nat.height
