@@ -30,6 +30,7 @@ import numpy as np
 
 from lite_vo.camera import PinholeIntrinsics
 from lite_vo.errors import InputError
+from lite_vo.geometry import transform_points
 
 
 @dataclass(frozen=True)
@@ -129,9 +130,7 @@ def map_points_world(idepth: np.ndarray, intrinsics: PinholeIntrinsics, T_world_
     if valid is not None:
         ok &= valid
     v, u = np.nonzero(ok)
-    pts = intrinsics.unproject_idepth(u, v, idepth[v, u])
-    T = np.asarray(T_world_cam, dtype=np.float64)
-    return pts @ T[:3, :3].T + T[:3, 3]
+    return transform_points(T_world_cam, intrinsics.unproject_idepth(u, v, idepth[v, u]))
 
 
 def lowest_supported_height(heights: np.ndarray, min_support: int, band: float) -> float | None:

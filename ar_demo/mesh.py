@@ -7,7 +7,7 @@ gives two triangles; triangles whose corner depths differ by more than ``max_dep
 occluding edge and are dropped (they would be walls that do not exist). Vertices far away (tiny or
 zero inverse depth: sky, horizon) are clamped to ``idepth_floor``.
 
-Imports: numpy, trimesh (export only), lite_vo (camera) only.
+Imports: numpy, trimesh (export only), lite_vo (camera, errors, geometry) only.
 """
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ import numpy as np
 
 from lite_vo.camera import PinholeIntrinsics
 from lite_vo.errors import InputError
+from lite_vo.geometry import transform_points
 
 
 @dataclass
@@ -62,7 +63,7 @@ def grid_mesh(idepth_grid: np.ndarray, intrinsics_grid: PinholeIntrinsics, T_wor
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
     pts = intrinsics_grid.unproject_idepth(u.ravel(), v.ravel(), idepth.ravel())
     T = np.asarray(T_world_cam, dtype=np.float64)
-    verts = pts @ T[:3, :3].T + T[:3, 3]
+    verts = transform_points(T, pts)
     faces = grid_faces(h, w)
     if max_depth_ratio and max_depth_ratio > 0:
         d = idepth.ravel()[faces]

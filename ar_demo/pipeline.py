@@ -36,6 +36,7 @@ import numpy as np
 
 from lite_vo.camera import PinholeIntrinsics
 from lite_vo.errors import InputError
+from lite_vo.geometry import transform_points
 
 from .config import ARConfig
 from .ground import GravityFilter, GroundPlane, estimate_ground_plane, map_points_world
@@ -339,8 +340,7 @@ class ARSink(_SinkBase):
         if idepth <= 0:
             return None
         p_cam = intr.unproject_idepth(np.array([u]), np.array([v]), np.array([idepth]))
-        p_world = p_cam @ T[:3, :3].T + T[:3, 3]
-        return self.physics.frame.to_phys(p_world)[0, :2]
+        return self.physics.frame.to_phys(transform_points(T, p_cam))[0, :2]
 
     def _spawn_pose(self, T, intr):
         xy = self._ground_hit(T, intr, intr.cx, intr.cy + self.cfg.spawn_v_rel * intr.height)

@@ -11,7 +11,7 @@ lands on window coordinate ``u + 0.5``, and image row 0 on framebuffer row 0, so
 read back (bottom-up in GL terms) is the image in its usual row order, with no flip.
 
 Ownership: an :class:`ARRenderer` holds a GL context and must be used by the thread that made it.
-Imports: numpy, moderngl, trimesh (car meshes), lite_vo (camera, errors).
+Imports: numpy, moderngl, trimesh (car meshes), lite_vo (camera, errors, geometry).
 """
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ import numpy as np
 
 from lite_vo.camera import PinholeIntrinsics
 from lite_vo.errors import LiteVOError, MissingExtraError
+from lite_vo.geometry import inverse_se3, transform_points
 
 
 class RenderUnavailable(LiteVOError):
@@ -298,8 +299,7 @@ def car_objects(parts: list[MeshPart], link_poses_phys: dict[int, np.ndarray], S
 
 def project_points(intr: PinholeIntrinsics, T_world_cam: np.ndarray, points_world: np.ndarray) -> np.ndarray:
     """Pixel coordinates (N, 2) and depth (N,) of world points (numpy reference for tests)."""
-    T = np.linalg.inv(np.asarray(T_world_cam, dtype=np.float64))
-    pc = np.asarray(points_world, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
+    pc = transform_points(inverse_se3(T_world_cam), points_world)
     return intr.project(pc), pc[:, 2]
 
 
