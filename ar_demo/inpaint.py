@@ -21,8 +21,8 @@ from lite_vo.errors import InputError
 from . import _kernels
 
 
-def reduce_idepth(idepth: np.ndarray, idepth_var: np.ndarray, out_shape: tuple[int, int],
-                  valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def reduce_idepth(idepth: np.ndarray, idepth_var: np.ndarray,
+                  out_shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(D, V, count) on the ``out_shape`` grid; D, V are NaN where no valid pixel falls into a cell."""
     d = np.array(idepth, dtype=np.float64)
     v = np.array(idepth_var, dtype=np.float64)
@@ -31,8 +31,6 @@ def reduce_idepth(idepth: np.ndarray, idepth_var: np.ndarray, out_shape: tuple[i
     h, w = int(out_shape[0]), int(out_shape[1])
     if h < 1 or w < 1 or h > d.shape[0] or w > d.shape[1]:
         raise InputError(f"reduce_idepth: grid {h}x{w} must be within 1x1 .. {d.shape[0]}x{d.shape[1]}")
-    if valid is not None:
-        d[~np.asarray(valid, dtype=bool)] = np.nan
     d[~(d > 0)] = np.nan                   # non-positive idepth is not a hypothesis
     count = None
     while d.shape[0] >= 2 * h and d.shape[1] >= 2 * w and d.shape[0] % 2 == 0 and d.shape[1] % 2 == 0:
@@ -61,13 +59,13 @@ class InpaintResult:
 
 
 def inpaint(D: np.ndarray, V: np.ndarray, prior_idepth: np.ndarray, alpha: float, huber_delta: float,
-            ground_var: float, min_var: float = 1e-4, iterations: int = 400, tol: float = 1e-9,
-            scale: float | None = None) -> InpaintResult:
+            ground_var: float, min_var: float = 1e-4, iterations: int = 400,
+            tol: float = 1e-9) -> InpaintResult:
     """Dense inverse depth minimising eq. 5.6.
 
     ``D, V``: reduced map (NaN where empty), ``prior_idepth``: ground-plane inverse depth per cell
-    (0 where the ray misses the plane), same shape. ``scale``: normalisation (default: median of D,
-    else of the positive prior).
+    (0 where the ray misses the plane), same shape. Normalised by the median of D (else of the
+    positive prior).
     """
     D = np.asarray(D, dtype=np.float64)
     V = np.asarray(V, dtype=np.float64)
@@ -75,9 +73,8 @@ def inpaint(D: np.ndarray, V: np.ndarray, prior_idepth: np.ndarray, alpha: float
     if D.shape != V.shape or D.shape != prior.shape or D.ndim != 2:
         raise InputError(f"inpaint: D {D.shape}, V {V.shape}, prior {prior.shape} must be equal 2-D arrays")
     mask = np.isfinite(D) & np.isfinite(V) & (D > 0) & (V > 0)
-    if scale is None:
-        ref = D[mask] if mask.any() else prior[prior > 0]
-        scale = float(np.median(ref)) if ref.size else 1.0
+    ref = D[mask] if mask.any() else prior[prior > 0]
+    scale = float(np.median(ref)) if ref.size else 1.0
     if not (scale > 0 and np.isfinite(scale)):
         raise InputError(f"inpaint: normalisation scale must be positive, got {scale}")
     prior_n = np.where(np.isfinite(prior) & (prior > 0), prior, 0.0) / scale
@@ -88,16 +85,3 @@ def inpaint(D: np.ndarray, V: np.ndarray, prior_idepth: np.ndarray, alpha: float
     n = _kernels.inpaint_kernel(u, np.ascontiguousarray(f), np.ascontiguousarray(w), float(alpha),
                                 float(huber_delta), int(iterations), float(tol), energies)
     return InpaintResult(u * scale, mask, energies[:n + 1].copy(), int(n), scale)
-
-
-def inpaint_map(idepth: np.ndarray, idepth_var: np.ndarray, prior_idepth_grid: np.ndarray, cfg,
-                valid: np.ndarray | None = None) -> InpaintResult:
-    """Reduce the semi-dense map to the grid of ``prior_idepth_grid`` and in-paint it (``cfg``: ARConfig)."""
-    D, V, _ = reduce_idepth(idepth, idepth_var, prior_idepth_grid.shape, valid)
-    return inpaint(D, V, prior_idepth_grid, cfg.alpha, cfg.huber_delta, cfg.ground_var, cfg.min_var,
-                   cfg.solver_iterations, cfg.solver_tol)
-
-
-def grid_intrinsics(intrinsics, grid_h: int, grid_w: int):
-    """Intrinsics of the grid whose cells tile the map image (cell centres are the grid pixels)."""
-    return intrinsics.scaled(grid_w, grid_h)
