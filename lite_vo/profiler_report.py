@@ -304,11 +304,17 @@ def _figure(*args, **kwargs):
     return fig
 
 
+def _profiles_by_resolution(report: dict) -> tuple[list[str], list[str]]:
+    """Profiles from the finest to the coarsest resolution, and their ``map/track`` width labels."""
+    res = report["profiles"]
+    profiles = sorted(_profiles_sorted(report), key=lambda p: (
+        -(res[p].get("map_width") or 0), -(res[p].get("track_width") or 0)))
+    return profiles, [res[p].get("label", p) for p in profiles]
+
+
 def plot_accuracy(report: dict, path: Path) -> Path:
     """Drift (cm/s, deg/s) per profile, ordered from the finest to the coarsest resolution."""
-    profiles = sorted(_profiles_sorted(report), key=lambda p: (
-        -(report["profiles"][p].get("map_width") or 0), -(report["profiles"][p].get("track_width") or 0)))
-    labels = [report["profiles"][p].get("label", p) for p in profiles]
+    profiles, labels = _profiles_by_resolution(report)
     x = np.arange(len(profiles))
     fig = _figure(figsize=(9, 3.6), layout="constrained")
     axes = fig.subplots(1, 2)
@@ -343,9 +349,7 @@ def plot_accuracy(report: dict, path: Path) -> Path:
 
 def plot_timing(report: dict, path: Path) -> Path:
     """Tracking and mapping ms (mean ± std) per profile, finest resolution first."""
-    profiles = sorted(_profiles_sorted(report), key=lambda p: (
-        -(report["profiles"][p].get("map_width") or 0), -(report["profiles"][p].get("track_width") or 0)))
-    labels = [report["profiles"][p].get("label", p) for p in profiles]
+    profiles, labels = _profiles_by_resolution(report)
     x = np.arange(len(profiles))
     fig = _figure(figsize=(6.5, 3.8), layout="constrained")
     ax = fig.subplots()
