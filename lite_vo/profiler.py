@@ -986,7 +986,7 @@ def run_profile(settings: ProfileSettings, runner: Runner | None = None, evaluat
             log(f"warning: {seq}: no ground truth ({err})")
             gts[name] = None
 
-    report["workers"] = int(s.workers or default_workers())
+    workers = report["workers"] = int(s.workers or default_workers())
     if s.warmup and runner is None:
         log("warming up numba kernels (lite-vo warmup) ...")
         report["warmup"] = run_warmup_subprocess()
@@ -996,13 +996,13 @@ def run_profile(settings: ProfileSettings, runner: Runner | None = None, evaluat
         log(f"[{i}/{n}] {spec.key}: {state} ({o.wall_s:.1f} s)")
 
     if s.init_study > 0:
-        prof = s.profiles[0] if settings.profiles else "phone"
+        prof = s.profiles[0]
         specs = []
         for name, seq in zip(seq_names, s.sequences):
             specs += plan_init_study(seq, name, s.init_study, s.init_study_len, out / "init_study",
                                      profile=prof, pin_core=s.pin_core, overrides=tuple(s.overrides))
-        log(f"initialisation study: {len(specs)} runs on {s.workers or default_workers()} worker(s)")
-        outcomes = execute(specs, runner, s.workers, s.pin_core, progress)
+        log(f"initialisation study: {len(specs)} runs on {workers} worker(s)")
+        outcomes = execute(specs, runner, workers, s.pin_core, progress)
         records = []
         for spec, o in zip(specs, outcomes):
             rec = collect_run(spec, o, gts.get(spec.seq_name), evaluator, max_lost_ratio=1.0,
@@ -1018,9 +1018,9 @@ def run_profile(settings: ProfileSettings, runner: Runner | None = None, evaluat
                          max_frames=s.max_frames, pin_core=s.pin_core, overrides=tuple(s.overrides))
                  for k in range(s.repeat) for name, seq in zip(seq_names, s.sequences) for p in s.profiles]
         log(f"{len(specs)} runs ({len(s.sequences)} sequence(s) x {len(s.profiles)} profile(s) x "
-            f"{s.repeat}) on {s.workers or default_workers()} worker(s)"
+            f"{s.repeat}) on {workers} worker(s)"
             + (", each pinned to one core" if s.pin_core else ""))
-        outcomes = execute(specs, runner, s.workers, s.pin_core, progress)
+        outcomes = execute(specs, runner, workers, s.pin_core, progress)
         records = [collect_run(spec, o, gts.get(spec.seq_name), evaluator, s.max_lost_ratio, s.delta_s)
                    for spec, o in zip(specs, outcomes)]
         report["runs"] = records
