@@ -107,10 +107,6 @@ class Trajectory:
         out[:3, 3] = (1 - a) * T0[:3, 3] + a * T1[:3, 3]
         return out
 
-    def transformed(self, T_new_world: np.ndarray) -> "Trajectory":
-        """The trajectory expressed in another world frame: ``T_new_world @ T_world_cam``."""
-        return Trajectory(self.timestamps, np.asarray(T_new_world, dtype=np.float64) @ self.poses)
-
 
 class Accelerometer:
     """Accelerometer samples: ``timestamps`` (N,) s, strictly increasing; ``acc_xyz`` (N, 3) m/s^2,
