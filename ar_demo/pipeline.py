@@ -533,7 +533,7 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
     ``trajectory_out``: TUM trajectory of the camera poses used. ``progress(i, n)``: callback.
     """
     import lite_vo
-    from lite_vo.geometry import tum_from_pose
+    from lite_vo.io import Trajectory, write_trajectory
     cfg = cfg or ARConfig()
     if panels is not None:
         cfg = cfg.replace(panels=bool(panels))
@@ -557,7 +557,8 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
         fps = float(1.0 / np.median(np.diff(np.asarray(ts_all)[:max(2, int(min(n, len(ts_all))))])))
     rect_full = _rectifier_full(seq)
     intr_full = rect_full.intrinsics
-    traj_rows: list[tuple[float, np.ndarray]] = []
+    traj_t: list[float] = []
+    traj_T: list[np.ndarray] = []
     vo = None
     if poses == "gt":
         gt = seq.groundtruth
@@ -590,7 +591,8 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
                 res = GTFrameResult(fr.index, fr.timestamp, T, T is None)
                 sink.on_frame(res, rect_full(fr.image))
             if res.T_world_cam is not None and not res.lost:
-                traj_rows.append((res.timestamp, np.asarray(res.T_world_cam)))
+                traj_t.append(res.timestamp)
+                traj_T.append(np.asarray(res.T_world_cam))
             if progress is not None:
                 progress(i + 1, n)
     finally:
@@ -599,13 +601,11 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
         sink.on_finish()
         seq.close()
     if trajectory_out is not None:
-        with open(trajectory_out, "w") as f:
-            f.write("# timestamp tx ty tz qx qy qz qw (T_world_cam)\n")
-            for t, T in traj_rows:
-                f.write(f"{t:.6f} " + " ".join(f"{x:.9f}" for x in tum_from_pose(T)) + "\n")
+        write_trajectory(trajectory_out, Trajectory(traj_t, np.reshape(traj_T, (-1, 4, 4))),
+                         comment="T_world_cam")
     summary = dict(sink.summary)
     summary.update({"sequence": str(sequence_path), "poses": poses, "profile": profile if poses == "estimate" else None,
-                    "frames_in": summary.get("frames_written", 0), "frames_with_pose": len(traj_rows),
+                    "frames_in": summary.get("frames_written", 0), "frames_with_pose": len(traj_t),
                     "wall_s": time.perf_counter() - t_start})
     return summary
 
