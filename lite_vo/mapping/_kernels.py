@@ -150,6 +150,19 @@ def line_length(u, v, min_id, max_id, R, t, fx, fy, cx, cy):
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
+def _slide_into(p, q, dp, dq, lo, hi):
+    """Move the point (p, q) along (dp, dq) until p lies on ``lo`` or ``hi`` when it is at or beyond
+    that bound; returns it unchanged when ``lo < p < hi``."""
+    if p <= lo:
+        k = (lo - p) / dp
+    elif p >= hi:
+        k = (hi - p) / dp
+    else:
+        return p, q
+    return p + k * dp, q + k * dq
+
+
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
 def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, fy, cx, cy,
                 gxi, gyi, track_residual, prm, allow_long, samples, ssd):
     """Search the epipolar line of current pixel (u, v) in ``ref``.
@@ -209,22 +222,8 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
         return OUT_OF_IMAGE, 0.0, 0.0, 0.0, 0.0
     if close_x <= b or close_x >= w - b or close_y <= b or close_y >= h - b:
         # clip the near end into the image along the line
-        if close_x <= b:
-            k = (b - close_x) / incx
-            close_x += k * incx
-            close_y += k * incy
-        elif close_x >= w - b:
-            k = (w - b - close_x) / incx
-            close_x += k * incx
-            close_y += k * incy
-        if close_y <= b:
-            k = (b - close_y) / incy
-            close_x += k * incx
-            close_y += k * incy
-        elif close_y >= h - b:
-            k = (h - b - close_y) / incy
-            close_x += k * incx
-            close_y += k * incy
+        close_x, close_y = _slide_into(close_x, close_y, incx, incy, b, w - b)
+        close_y, close_x = _slide_into(close_y, close_x, incy, incx, b, h - b)
         dxl = close_x - far_x
         dyl = close_y - far_y
         if (not (close_x > b and close_x < w - b and close_y > b and close_y < h - b)
