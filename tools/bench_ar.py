@@ -28,12 +28,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _stats(v):
-    v = np.asarray(v, dtype=np.float64)
-    return {"count": int(v.size), "median": float(np.median(v)), "mean": float(v.mean()),
-            "p95": float(np.percentile(v, 95))} if v.size else {"count": 0, "median": 0, "mean": 0, "p95": 0}
-
-
 def _row(name, s):
     return f"| {name} | {s['median']:.1f} | {s['mean']:.1f} | {s['p95']:.1f} | {s['count']} |"
 
@@ -49,7 +43,7 @@ def main(argv=None) -> int:
     from ar_demo import _kernels
     from ar_demo.config import ARConfig
     from ar_demo.ground import GroundPlane
-    from ar_demo.pipeline import run_ar, semi_dense_from_depth
+    from ar_demo.pipeline import run_ar, semi_dense_from_depth, stats_ms
     from ar_demo.world_model import build_world_model
     import lite_vo
 
@@ -91,7 +85,7 @@ def main(argv=None) -> int:
             iters.append(m.inpaint.iterations)
             for k, v in m.stage_ms.items():
                 stages[k].append(v)
-        iso[f"{gh}x{gw}"] = {"build_ms": _stats(times), "iterations_median": float(np.median(iters)),
+        iso[f"{gh}x{gw}"] = {"build_ms": stats_ms(times), "iterations_median": float(np.median(iters)),
                              "stage_median_ms": {k: float(np.median(v)) for k, v in stages.items()}}
     s0.close()
 
