@@ -56,10 +56,7 @@ def main(argv=None) -> int:
     import lite_vo
     from lite_vo import image as image_mod
     from lite_vo.image import image_pyramid
-    from lite_vo.tracking import Tracker, TrackingReference
-    from lite_vo.tracking import _kernels
-
-    from lite_vo.tracking import depth_image_mask
+    from lite_vo.tracking import Tracker, TrackingReference, _kernels, depth_image_idepth
 
     numba.set_num_threads(1)
     image_mod.warmup()
@@ -89,8 +86,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         pyr = image_pyramid(img, r.pyramid_levels)
         pyr_ms.append((time.perf_counter() - t0) * 1e3)
-        valid = depth_image_mask(pyr[0], depth, cfg.tracking)
-        idepth = np.where(valid, 1.0 / np.maximum(depth, 1e-6), 0.0).astype(np.float32)
+        idepth, valid = depth_image_idepth(pyr[0], depth, cfg.tracking)
         t0 = time.perf_counter()
         ref = TrackingReference.build(pyr, idepth, np.full_like(idepth, 1e-4), valid, intr, k,
                                       smooth_sigma=cfg.tracking.smooth_sigma,

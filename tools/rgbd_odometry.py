@@ -8,7 +8,7 @@ RPE (1 s) against the sequence's ground truth, plus tracking time statistics.
     python tools/rgbd_odometry.py ../shared/data/icl_livingroom_211 --profile phone --out /tmp/icl.txt
     python tools/rgbd_odometry.py SEQ --set tracking.huber=2.0 --min-grad 5 --idepth-var 1e-4
 
-The reference map of a frame: :func:`lite_vo.tracking.depth_image_mask` (valid depth, gradient >=
+The reference map of a frame: :func:`lite_vo.tracking.depth_image_idepth` (valid depth, gradient >=
 ``tracking.depth_image_min_grad``, away from depth discontinuities), idepth = 1/depth,
 ``idepth_var = --idepth-var`` (+ ``--idepth-var-rel`` * idepth^2, a relative depth-noise model).
 """
@@ -74,7 +74,7 @@ def run(args) -> dict:
     from lite_vo.eval import evaluate
     from lite_vo.image import image_pyramid
     from lite_vo.io import Trajectory, write_trajectory
-    from lite_vo.tracking import Tracker, TrackingReference, depth_image_mask
+    from lite_vo.tracking import Tracker, TrackingReference, depth_image_idepth
 
     overrides = list(args.set or ())
     if args.min_grad is not None:
@@ -123,9 +123,7 @@ def run(args) -> dict:
             T_world = T_world @ res.T_ref_new
             stamps.append(ts)
             poses.append(T_world.copy())
-        valid = depth_image_mask(pyr[0], depth, cfg.tracking)
-        with np.errstate(divide="ignore"):
-            idepth = np.where(valid, 1.0 / np.maximum(depth, 1e-6), 0.0).astype(np.float32)
+        idepth, valid = depth_image_idepth(pyr[0], depth, cfg.tracking)
         var = (args.idepth_var + args.idepth_var_rel * idepth ** 2).astype(np.float32)
         ref = TrackingReference.build(pyr, idepth, var, valid, intr, k, smooth_sigma=cfg.tracking.smooth_sigma,
                                       min_level=res_cfg.track_level)

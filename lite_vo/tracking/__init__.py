@@ -5,8 +5,8 @@ Public API: :class:`TrackingReference` (immutable per-level point arrays built o
 Imports numpy, numba, :mod:`lite_vo.image`, :mod:`lite_vo.camera`, :mod:`lite_vo.geometry` only.
 """
 from .config import TrackingConfig
-from .depth_images import depth_image_mask
+from .depth_images import depth_image_idepth, depth_image_mask
 from .reference import ReferenceLevel, TrackingReference
 from .tracker import Tracker, TrackingResult
 
-__all__ = ["depth_image_mask", "TrackingConfig", "TrackingReference", "ReferenceLevel", "Tracker", "TrackingResult"]
+__all__ = ["depth_image_mask", "depth_image_idepth", "TrackingConfig", "TrackingReference", "ReferenceLevel", "Tracker", "TrackingResult"]

@@ -1,6 +1,7 @@
 """Reference-point selection for tracking against depth images (``--depth images``, RGB-D odometry).
 
-Owns :func:`depth_image_mask`: which pixels of a depth image make good tracking points. Measured on
+Owns :func:`depth_image_mask`: which pixels of a depth image make good tracking points, and
+:func:`depth_image_idepth`: that mask with the inverse depth of the selected pixels. Measured on
 ICL living room (tools/rgbd_odometry.py): dropping pixels near depth discontinuities halves the
 drift (a pixel on an occlusion boundary does not describe what the next frame sees there, and the
 depth pyramid would average foreground and background), and restricting to pixels with image
@@ -41,3 +42,12 @@ def depth_image_mask(image: np.ndarray, depth_m: np.ndarray, config: TrackingCon
         dmin = cv2.erode(np.where(dd > 0, dd, np.float32(1e9)).astype(np.float32), kernel)
         valid &= (dmax - dmin) < c.depth_image_max_step * dd
     return valid
+
+
+def depth_image_idepth(image: np.ndarray, depth_m: np.ndarray, config: TrackingConfig | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """``(idepth, valid)``: :func:`depth_image_mask` and float32 ``1 / depth`` on it (0 elsewhere), the
+    level-0 inverse-depth map a :class:`TrackingReference` is built from in depth-image tracking."""
+    valid = depth_image_mask(image, depth_m, config)
+    d = np.asarray(depth_m, dtype=np.float32)
+    return np.where(valid, 1.0 / np.where(valid, d, 1.0), 0.0).astype(np.float32), valid
