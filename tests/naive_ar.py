@@ -77,16 +77,10 @@ def inpaint_naive(u0, f, w, alpha, delta, iterations, tol):
 
 # ----------------------------------------------------------------------------- analytic scenes
 def look_at(eye, target, up=(0.0, 0.0, 1.0)):
-    """T_world_cam of an OpenCV camera (x right, y down, z forward) at ``eye`` looking at ``target``."""
-    eye = np.asarray(eye, float)
-    z = np.asarray(target, float) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, np.asarray(up, float))
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, eye
-    return T
+    """T_world_cam of an OpenCV camera (x right, y down, z forward) at ``eye`` looking at ``target``
+    (:func:`ar_demo.pipeline.look_at` with world z up by default)."""
+    from ar_demo.pipeline import look_at as _look_at
+    return _look_at(eye, target, up)
 
 
 def raycast_depth(T_world_cam, K, width, height, boxes=(), floor_z=0.0):
