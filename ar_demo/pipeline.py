@@ -37,24 +37,12 @@ import numpy as np
 from lite_vo.camera import PinholeIntrinsics
 from lite_vo.errors import InputError
 from lite_vo.geometry import transform_points
+from lite_vo.system import OutputSink
 
 from .config import ARConfig
 from .ground import GravityFilter, GroundPlane, estimate_ground_plane, map_points_world
 
 log = logging.getLogger(__name__)
-
-try:  # the VO's observer base class (no-op methods)
-    from lite_vo.system import OutputSink as _SinkBase
-except ImportError:  # pragma: no cover - before lite_vo.system existed
-    class _SinkBase:
-        def on_frame(self, result, image):
-            pass
-
-        def on_map(self, frame_id, timestamp, T_world_cam, idepth, idepth_var, intrinsics):
-            pass
-
-        def on_finish(self):
-            pass
 
 
 @dataclass
@@ -175,7 +163,7 @@ class _RenderThread:
             raise err
 
 
-class ARSink(_SinkBase):
+class ARSink(OutputSink):
     """The AR demo as a VO output sink (see the module docstring)."""
 
     def __init__(self, cfg: ARConfig, intrinsics_full: PinholeIntrinsics, out_video: str | Path,
