@@ -15,7 +15,7 @@ never tracking, system, io or anything of the AR demo.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -438,8 +438,7 @@ class Mapper:
 
         self._buffer = [(scaled(fr), slot) for fr, slot in self._buffer]
         if self._cur is not None:
-            self._cur = _Prepared(scaled(self._cur.frame), self._cur.image, self._cur.gx,
-                                  self._cur.gy, self._cur.maxgrad)
+            self._cur = replace(self._cur, frame=scaled(self._cur.frame))
 
     def mean_idepth(self) -> float:
         """Mean inverse depth of the valid hypotheses (NaN when the map is empty)."""
