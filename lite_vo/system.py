@@ -505,9 +505,8 @@ class VisualOdometry:
             self._initialized = True
             self.metric = True
         else:
-            from .tracking import depth_image_mask
-            valid = depth_image_mask(prev.image, prev.depth_m, self.config.tracking)
-            idepth = np.where(valid, 1.0 / np.where(valid, prev.depth_m, 1.0), 0.0).astype(np.float32)
+            from .tracking import depth_image_idepth
+            idepth, valid = depth_image_idepth(prev.image, prev.depth_m, self.config.tracking)
             var = np.full_like(idepth, self.config.mapping.depth_init_var)
             ref = self._build_reference(prev, idepth, var, valid)
             base = self._last_pose

@@ -1,8 +1,9 @@
 """Slow, obviously-correct numpy versions of every numba kernel, one module per package.
 
-Tests compare each kernel against its twin here; the twins live in ``naive_<package>.py``.
+Tests compare each kernel against its twin in ``naive_<package>.py``; this module gives them one
+name space each (``naive.mapping.gradients`` and ``naive.tracking.gradients`` differ).
 """
-from naive_ar import *  # noqa: F401,F403
-from naive_mapping import *  # noqa: F401,F403
-from naive_synth import *  # noqa: F401,F403
-from naive_tracking import *  # noqa: F401,F403
+import naive_ar as ar  # noqa: F401
+import naive_mapping as mapping  # noqa: F401
+import naive_synth as synth  # noqa: F401
+import naive_tracking as tracking  # noqa: F401

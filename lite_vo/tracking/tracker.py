@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import PinholeIntrinsics
-from ..geometry import inverse_se3
+from ..geometry import inverse_se3, project_to_se3
 from ..image import bspline_coefficient_stack, gaussian_blur, intensity_gradient_stack
 from . import _kernels as K
 from .config import TrackingConfig
@@ -49,23 +49,6 @@ class TrackingResult:
         return {"residual": self.residual, "mean_abs_residual": self.mean_abs_residual, "good_ratio": self.good_ratio, "inside_ratio": self.inside_ratio,
                 "points_used": self.points_used, "lost": self.lost, "lost_reason": self.lost_reason,
                 "affine_a": self.affine[0], "affine_b": self.affine[1], "track_ms": self.total_ms}
-
-
-def _nearest_rigid(T: np.ndarray) -> np.ndarray:
-    """``T`` with its rotation block projected onto SO(3) (SVD), bottom row exact.
-
-    Poses composed over many frames drift away from orthonormality by rounding; ``inverse_se3``
-    (transpose) is then no longer the inverse and the error compounds frame after frame, so the
-    tracker makes its guess and its result exactly rigid."""
-    U, _, Vt = np.linalg.svd(T[:3, :3])
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        U[:, -1] *= -1
-        R = U @ Vt
-    out = np.eye(4)
-    out[:3, :3] = R
-    out[:3, 3] = T[:3, 3]
-    return out
 
 
 class Tracker:
@@ -111,7 +94,7 @@ class Tracker:
         guess = np.asarray(T_ref_new_guess, dtype=np.float64)
         if guess.shape != (4, 4) or not np.all(np.isfinite(guess)):
             raise ValueError("T_ref_new_guess must be a finite 4x4 matrix")
-        guess = _nearest_rigid(guess)
+        guess = project_to_se3(guess)
         T = np.ascontiguousarray(inverse_se3(guess))          # T_new_ref
         n_lvl = min(len(image_pyr_new), ref.num_levels)
         top = min(self.coarsest, n_lvl - 1)
@@ -187,7 +170,7 @@ class Tracker:
         K.unpack_normal_equations(finest_acc, H, np.empty(6))
         res.hessian = H
         if np.all(np.isfinite(T)):
-            res.T_ref_new = inverse_se3(_nearest_rigid(T))
+            res.T_ref_new = inverse_se3(project_to_se3(T))
         if not np.all(np.isfinite(T)):
             res.lost_reason = "non-finite pose"
         elif res.inside_ratio < c.min_inside_ratio:
