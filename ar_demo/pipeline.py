@@ -38,6 +38,7 @@ from lite_vo.camera import PinholeIntrinsics
 from lite_vo.errors import InputError
 from lite_vo.geometry import transform_points
 from lite_vo.system import OutputSink
+from lite_vo.timing import timing_stats
 
 from .config import ARConfig
 from .ground import GravityFilter, GroundPlane, estimate_ground_plane, map_points_world
@@ -53,14 +54,6 @@ class GTFrameResult:
     T_world_cam: np.ndarray | None
     lost: bool = False
     quality: dict = field(default_factory=dict)
-
-
-def stats_ms(values) -> dict:
-    v = np.asarray(list(values), dtype=np.float64)
-    if v.size == 0:
-        return {"count": 0, "mean": 0.0, "median": 0.0, "p95": 0.0, "max": 0.0}
-    return {"count": int(v.size), "mean": float(v.mean()), "median": float(np.median(v)),
-            "p95": float(np.percentile(v, 95)), "max": float(v.max())}
 
 
 def semi_dense_from_depth(image: np.ndarray, depth_m: np.ndarray, min_grad: float,
@@ -493,7 +486,7 @@ class ARSink(OutputSink):
             "car_distance_phys": float(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1).sum()) if len(path) > 1 else 0.0,
             "car_reversals": 0 if ap is None else ap.reversals,
             "car_collisions": 0 if self.physics is None else self.physics.collisions,
-            "timing_ms": {k: stats_ms(v) for k, v in self.times.items()},
+            "timing_ms": {k: timing_stats(v) for k, v in self.times.items()},
             "events": self.events,
         }
         if self.physics is not None:

@@ -30,13 +30,14 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable
 
 import numpy as np
 
 from .camera import PinholeIntrinsics
 from .config import VOConfig
 from .errors import InputError, LiteVOError
+from .timing import Timers
 from .geometry import inverse_se3, project_to_se3
 
 log = logging.getLogger(__name__)
@@ -71,34 +72,6 @@ class OutputSink:
 
     def on_finish(self) -> None:
         """The run ended."""
-
-
-class Timers:
-    """Named lists of durations in milliseconds, with the contract's summary statistics."""
-
-    def __init__(self) -> None:
-        self._lists: dict[str, list[float]] = {}
-        self._lock = threading.Lock()
-
-    def add(self, name: str, ms: float) -> None:
-        with self._lock:
-            self._lists.setdefault(name, []).append(float(ms))
-
-    def values(self, name: str) -> list[float]:
-        with self._lock:
-            return list(self._lists.get(name, ()))
-
-    def names(self) -> list[str]:
-        with self._lock:
-            return list(self._lists)
-
-    @staticmethod
-    def summary(values: Sequence[float]) -> dict:
-        if len(values) == 0:
-            return {"count": 0, "mean": 0.0, "std": 0.0, "median": 0.0, "p95": 0.0}
-        a = np.asarray(values, dtype=np.float64)
-        return {"count": int(a.size), "mean": float(a.mean()), "std": float(a.std()),
-                "median": float(np.median(a)), "p95": float(np.percentile(a, 95))}
 
 
 @dataclass(frozen=True)

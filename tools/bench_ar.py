@@ -43,7 +43,8 @@ def main(argv=None) -> int:
     from ar_demo import _kernels
     from ar_demo.config import ARConfig
     from ar_demo.ground import GroundPlane
-    from ar_demo.pipeline import run_ar, semi_dense_from_depth, stats_ms
+    from ar_demo.pipeline import run_ar, semi_dense_from_depth
+    from lite_vo.timing import timing_stats
     from ar_demo.world_model import build_world_model
     import lite_vo
 
@@ -85,7 +86,7 @@ def main(argv=None) -> int:
             iters.append(m.inpaint.iterations)
             for k, v in m.stage_ms.items():
                 stages[k].append(v)
-        iso[f"{gh}x{gw}"] = {"build_ms": stats_ms(times), "iterations_median": float(np.median(iters)),
+        iso[f"{gh}x{gw}"] = {"build_ms": timing_stats(times), "iterations_median": float(np.median(iters)),
                              "stage_median_ms": {k: float(np.median(v)) for k, v in stages.items()}}
     s0.close()
 

@@ -26,16 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
+from lite_vo.timing import timing_stats
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
 
 STAGES = ("propagate", "observe", "regularize", "fill")
 
-
-def _stats(v) -> dict:
-    v = np.asarray(v, float)
-    return {"count": int(v.size), "median": float(np.median(v)), "mean": float(np.mean(v)),
-            "std": float(np.std(v)), "p95": float(np.percentile(v, 95))}
 
 
 ACCURACY_RUNS = (
@@ -136,7 +133,7 @@ def main(argv=None) -> int:
     result = {
         "sequence": name, "resolution": [K.width, K.height], "numba_threads": args.threads,
         "iterations": len(wall["total"]), "repeat": args.repeat, "skip": args.skip, "overrides": overrides,
-        "wall_ms": {s: _stats(v) for s, v in wall.items()}, "cpu_ms": {s: _stats(v) for s, v in cpu.items()},
+        "wall_ms": {s: timing_stats(v) for s, v in wall.items()}, "cpu_ms": {s: timing_stats(v) for s, v in cpu.items()},
         "valid_median": float(np.median(valid)), "stereo_updates_median": float(np.median(updated)),
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
                     "loadavg_before": load_before, "loadavg_after": load_after, "python": platform.python_version(),

@@ -18,13 +18,9 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
+from lite_vo.timing import timing_stats
 
-def _stats(ms):
-    a = np.asarray(ms, float)
-    return {"count": int(a.size), "median": float(np.median(a)), "mean": float(a.mean()),
-            "p95": float(np.percentile(a, 95))}
 
 
 def main() -> None:
@@ -57,7 +53,7 @@ def main() -> None:
             render_frame(scene, T, K, config=cfg)
             wall.append(1000 * (time.perf_counter() - w0))
             cpu.append(1000 * (time.process_time() - c0))
-        per_ss[ss] = {"wall_ms": _stats(wall), "cpu_ms": _stats(cpu)}
+        per_ss[ss] = {"wall_ms": timing_stats(wall), "cpu_ms": timing_stats(cpu)}
     tmp = Path(tempfile.mkdtemp(prefix="bench_synth_"))
     try:
         w0, c0 = time.perf_counter(), time.process_time()

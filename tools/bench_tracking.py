@@ -29,16 +29,11 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from lite_vo.timing import timing_stats  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SEQ = ROOT.parent / "shared" / "data" / "icl_livingroom_211"
 
-
-def stats(values) -> dict:
-    a = np.asarray(values, dtype=np.float64)
-    if a.size == 0:
-        return {"count": 0}
-    return {"count": int(a.size), "median": float(np.median(a)), "mean": float(a.mean()),
-            "std": float(a.std()), "p95": float(np.percentile(a, 95)), "max": float(a.max()), "min": float(a.min())}
 
 
 def main(argv=None) -> int:
@@ -114,7 +109,7 @@ def main(argv=None) -> int:
                 per_level.setdefault(lvl, []).append(v)
             for lvl, v in res.iterations.items():
                 iters.setdefault(lvl, []).append(v)
-    points = {lvl: stats([ref.num_points(lvl) for ref in refs]) for lvl in sorted(per_level)}
+    points = {lvl: timing_stats([ref.num_points(lvl) for ref in refs]) for lvl in sorted(per_level)}
 
     result = {
         "sequence": Path(args.sequence).name, "profile": args.profile,
@@ -122,11 +117,11 @@ def main(argv=None) -> int:
         "track_resolution": [intr.level(r.track_level).width, intr.level(r.track_level).height],
         "frames_tracked_per_pass": len(frames) - 1, "passes": args.repeat, "lost": lost,
         "numba_threads": numba.get_num_threads(), "cpu": platform.processor() or platform.machine(),
-        "track_ms": stats(total),
-        "level_ms": {str(l): stats(v) for l, v in sorted(per_level.items(), reverse=True)},
-        "iterations": {str(l): stats(v) for l, v in sorted(iters.items(), reverse=True)},
+        "track_ms": timing_stats(total),
+        "level_ms": {str(l): timing_stats(v) for l, v in sorted(per_level.items(), reverse=True)},
+        "iterations": {str(l): timing_stats(v) for l, v in sorted(iters.items(), reverse=True)},
         "points": {str(l): v for l, v in sorted(points.items(), reverse=True)},
-        "reference_build_ms": stats(build_ms), "image_pyramid_ms": stats(pyr_ms),
+        "reference_build_ms": timing_stats(build_ms), "image_pyramid_ms": timing_stats(pyr_ms),
         "load_average": os.getloadavg()[0],
     }
     out_dir = Path(args.out_dir)
