@@ -322,7 +322,13 @@ def exp_se3_nb(xi, out):
     W[0, 1] = -wz; W[0, 2] = wy
     W[1, 0] = wz; W[1, 2] = -wx
     W[2, 0] = -wy; W[2, 1] = wx
-    W2 = W @ W
+    # W^2 = w w^T - th2 I, written out: a matrix product would need SciPy's BLAS inside numba,
+    # which the core install (numpy, numba, OpenCV) does not have
+    w = (wx, wy, wz)
+    W2 = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            W2[i, j] = w[i] * w[j] - (th2 if i == j else 0.0)
     for i in range(3):
         for j in range(3):
             e = 1.0 if i == j else 0.0
