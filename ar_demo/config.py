@@ -80,7 +80,6 @@ class ARConfig:
     near_rel: float = param(0.01, "near clipping plane relative to the median scene depth", 1e-6, 1.0)
     far_rel: float = param(50.0, "far clipping plane relative to the median scene depth", 1.0, 1e6)
     # --- semi-dense map from ground-truth depth (poses='gt' and tests)
-    gt_map_width: int = param(320, "width of the semi-dense map made from ground-truth depth", 16, 4096)
     gt_min_grad: float = param(8.0, "keep ground-truth depth pixels whose image gradient magnitude exceeds this", 0.0, 1000.0)
     gt_idepth_var: float = param(1e-4, "idepth variance given to ground-truth map pixels (relative to idepth^2)", 1e-12, 10.0)
 
@@ -90,7 +89,7 @@ class ARConfig:
 
 def ar_config(overrides: Iterable[str] | dict[str, Any] | None = None, **kw) -> ARConfig:
     """An :class:`ARConfig` with validated overrides (``"key=value"`` strings or a dict)."""
-    from lite_vo.config import _check_value  # validation shared with the VO profiles
+    from lite_vo.config import check_value  # validation shared with the VO profiles
     by_name = {f.name: f for f in fields(ARConfig)}
     values: dict[str, Any] = {}
     items: list[tuple[str, Any]] = []
@@ -118,5 +117,5 @@ def ar_config(overrides: Iterable[str] | dict[str, Any] | None = None, **kw) -> 
         f = by_name[key]
         if f.type in (float, "float") and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
-        values[key] = _check_value(f"ar.{key}", f, value)
+        values[key] = check_value(f"ar.{key}", f, value)
     return ARConfig(**values)

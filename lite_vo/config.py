@@ -101,7 +101,7 @@ def describe(cls) -> list[tuple[str, Any, str, str]]:
     return out
 
 
-def _check_value(where: str, f: dataclasses.Field, value: Any) -> Any:
+def check_value(where: str, f: dataclasses.Field, value: Any) -> Any:
     expected = f.type if isinstance(f.type, type) else {"int": int, "float": float, "bool": bool,
                                                         "str": str}.get(str(f.type))
     if expected is bool:
@@ -146,7 +146,7 @@ def build_config(data: Mapping[str, Any], source: str = "profile", name: str = "
         for key, value in values.items():
             if key not in by_name:
                 raise ConfigError(f"{source}: unknown key {sec}.{key}")
-            kwargs[key] = _check_value(f"{source}: {sec}.{key}", by_name[key], value)
+            kwargs[key] = check_value(f"{source}: {sec}.{key}", by_name[key], value)
         sections[sec] = cls(**kwargs)
     cfg = VOConfig(name=name, **sections)
     _check_consistency(cfg, source)

@@ -14,7 +14,8 @@ Threads and ownership
 * **mapping thread** only: the *contents* of ``_mapper`` (``update``), the mapping timers.
 * **shared**: ``_reference`` (an immutable :class:`TrackingReference` plus the pose of the frame it
   lives in), swapped under ``_ref_lock`` by whoever built it; ``_pending`` (the newest tracked
-  frame waiting for mapping; older ones are replaced, i.e. skipped) under ``_cond``.
+  frame waiting for mapping; older ones are replaced, i.e. skipped) under ``_cond``;
+  ``_published`` (maps waiting for :meth:`VisualOdometry.take_published_maps`) under ``_ref_lock``.
   (Re-)initialisation happens in the tracking thread: it builds a *new* mapper and installs it
   under ``_ref_lock``; a map made meanwhile by the old mapper is not published, and frames tracked
   against the old map (``_Frame.mapper``) are not mapped into the new one.
@@ -22,23 +23,35 @@ Threads and ownership
 
 Numba kernels release the GIL, so both threads really run in parallel.
 
+The VO calls nobody back: :meth:`VisualOdometry.process` returns a :class:`FrameResult`, and every
+published map waits in a small bounded slot until the frame driver (:mod:`lite_vo.session`) takes
+it with :meth:`VisualOdometry.take_published_maps` and hands it to the output sinks on its own thread.
+
 This module never imports ``ar_demo`` or any GL/physics package.
 """
 from __future__ import annotations
 
+import collections
 import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from functools import cached_property
+from typing import Any
 
+import cv2
+import numba
 import numpy as np
 
-from .camera import PinholeIntrinsics
+from .bootstrap import InitVerifier
+from .camera import Camera, PinholeIntrinsics
 from .config import VOConfig
 from .errors import InputError, LiteVOError
-from .timing import Timers
 from .geometry import inverse_se3, project_to_se3
+from .image import image_pyramid
+from .mapping import MapFrame, Mapper, depth_accuracy
+from .timing import Timers
+from .tracking import Tracker, TrackingReference, depth_image_idepth
 
 log = logging.getLogger(__name__)
 
@@ -54,35 +67,52 @@ class FrameResult:
     mapped: bool = False
     event: str = ""  # "init", "reinit", "lost", "recovered" or ""
     corrections: dict = field(default_factory=dict)  # earlier frame index -> corrected T_world_cam or None
+    image: np.ndarray | None = field(default=None, repr=False)  # float32 grey at mapping resolution
 
 
-class OutputSink:
-    """Observer of the system; every method is a no-op by default. The AR demo is one sink.
+@dataclass(frozen=True, eq=False)
+class PublishedMap:
+    """A semi-dense map the VO published (read-only arrays at mapping resolution)."""
+    frame_index: int
+    timestamp: float
+    T_world_cam: np.ndarray
+    camera: PinholeIntrinsics
+    image: np.ndarray                      # float32 grey image of the map's frame
+    idepth_raw: np.ndarray = field(repr=False)
+    idepth_var_raw: np.ndarray = field(repr=False)
+    valid: np.ndarray = field(repr=False)
 
-    Methods are called from the thread that produced the event (the mapping thread for
-    ``on_map`` in realtime mode) and must not modify the arrays they receive.
-    """
+    @cached_property
+    def idepth(self) -> np.ndarray:
+        """float32 inverse depth, NaN where there is no hypothesis."""
+        return np.where(self.valid, self.idepth_raw, np.nan).astype(np.float32)
 
-    def on_frame(self, result: FrameResult, image: np.ndarray) -> None:
-        """A frame was processed; ``image`` is the rectified float32 image at mapping resolution."""
+    @cached_property
+    def idepth_var(self) -> np.ndarray:
+        """float32 inverse-depth variance, NaN where there is no hypothesis."""
+        return np.where(self.valid, self.idepth_var_raw, np.nan).astype(np.float32)
 
-    def on_map(self, frame_id: int, timestamp: float, T_world_cam: np.ndarray, idepth: np.ndarray,
-               idepth_var: np.ndarray, intrinsics: PinholeIntrinsics) -> None:
-        """A new map was published (idepth/idepth_var NaN where there is no hypothesis)."""
+    def points_world(self, min_idepth: float = 1e-6) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """World-frame points (N, 3), their idepth variance (N,) and their pixels ``(v, u)``."""
+        ok = self.valid & (self.idepth_raw > min_idepth)
+        v, u = np.nonzero(ok)
+        if len(u) == 0:
+            return np.zeros((0, 3)), np.zeros(0), (v, u)
+        p_cam = self.camera.unproject_idepth(u, v, self.idepth_raw[ok])
+        T = self.T_world_cam
+        return p_cam @ T[:3, :3].T + T[:3, 3], self.idepth_var_raw[ok].astype(np.float64), (v, u)
 
-    def on_finish(self) -> None:
-        """The run ended."""
 
 
 @dataclass(frozen=True)
 class _Reference:
-    """What tracking tracks against: an immutable reference and the pose of its frame."""
+    """What tracking tracks against: an immutable reference and the map it was built from."""
     tracking_ref: Any
-    T_world_ref: np.ndarray
-    frame_id: int
-    idepth: np.ndarray        # level-0 map the reference was built from (read-only)
-    idepth_var: np.ndarray
-    valid: np.ndarray
+    map: PublishedMap
+
+    @property
+    def T_world_ref(self) -> np.ndarray:
+        return self.map.T_world_cam
 
 
 @dataclass
@@ -108,8 +138,6 @@ class VisualOdometry:
         :class:`PinholeIntrinsics` of already undistorted input images.
     config:
         a :class:`VOConfig` (``lite_vo.load_profile("phone")``).
-    sinks:
-        :class:`OutputSink` observers.
     depth_source:
         ``"filter"`` (the semi-dense filter, normal operation) or ``"images"`` (track every frame
         against the previous frame's depth image: RGB-D odometry, isolates tracking).
@@ -117,11 +145,10 @@ class VisualOdometry:
         ``"estimate"`` (tracking) or ``"given"`` (poses passed to :meth:`process`: isolates mapping).
     """
 
-    def __init__(self, camera, config: VOConfig, sinks: Iterable[OutputSink] = (),
-                 depth_source: str = "filter", pose_source: str = "estimate") -> None:
-        from .image import image_pyramid
-        from .tracking import Tracker
+    #: published maps kept for :meth:`take_published_maps` (older ones are dropped when nobody takes them)
+    MAX_WAITING_MAPS = 16
 
+    def __init__(self, camera, config: VOConfig, depth_source: str = "filter", pose_source: str = "estimate") -> None:
         if depth_source not in ("filter", "images"):
             raise LiteVOError(f"depth_source must be 'filter' or 'images', not {depth_source!r}")
         if pose_source not in ("estimate", "given"):
@@ -129,17 +156,13 @@ class VisualOdometry:
         self.config = config
         self.depth_source = depth_source
         self.pose_source = pose_source
-        self.sinks = list(sinks)
         res = config.resolution
         if config.system.numba_threads > 0:
-            import numba
             numba.set_num_threads(min(config.system.numba_threads, numba.config.NUMBA_NUM_THREADS))
         if isinstance(camera, PinholeIntrinsics):  # already undistorted input: resize and crop only
-            from .camera import Camera
             camera = Camera(camera)
         self._rectifier = camera.rectifier(res.map_width, multiple_of=2 ** (res.pyramid_levels - 1))
         self.map_intrinsics: PinholeIntrinsics = self._rectifier.intrinsics
-        self._image_pyramid = image_pyramid
         self.timers = Timers()
         self._rng_seed = config.system.seed
         # tracking thread only
@@ -161,6 +184,7 @@ class VisualOdometry:
         # shared
         self._ref_lock = threading.Lock()
         self._reference: _Reference | None = None
+        self._published: collections.deque = collections.deque(maxlen=self.MAX_WAITING_MAPS)
         self._cond = threading.Condition()
         self._pending: _Frame | None = None
         self._stop = False
@@ -196,9 +220,15 @@ class VisualOdometry:
             result = self._process_given_pose(frame, T_world_cam, t_start)
         else:
             result = self._process_tracking(frame, t_start)
-        for s in self.sinks:
-            s.on_frame(result, frame.image)
+        result.image = frame.image
         return result
+
+    def take_published_maps(self) -> list[PublishedMap]:
+        """The maps published since the last call, oldest first (the frame driver drains this)."""
+        with self._ref_lock:
+            maps = list(self._published)
+            self._published.clear()
+        return maps
 
     def depth_map(self) -> tuple[np.ndarray, np.ndarray]:
         """(idepth, idepth_var) of the latest published map at mapping resolution, NaN where empty."""
@@ -207,7 +237,7 @@ class VisualOdometry:
         if ref is None:
             h, w = self.map_intrinsics.height, self.map_intrinsics.width
             return np.full((h, w), np.nan, np.float32), np.full((h, w), np.nan, np.float32)
-        return _nan_where_empty(ref.idepth, ref.idepth_var, ref.valid)
+        return ref.map.idepth, ref.map.idepth_var
 
     def map_points(self) -> tuple[np.ndarray, np.ndarray]:
         """World-frame points (N, 3) of the latest map and their idepth variance (N,)."""
@@ -215,14 +245,8 @@ class VisualOdometry:
             ref = self._reference
         if ref is None:
             return np.zeros((0, 3)), np.zeros(0)
-        idepth, var = _nan_where_empty(ref.idepth, ref.idepth_var, ref.valid)  # pose and map of one reference
-        ok = np.isfinite(idepth) & (idepth > 1e-6)
-        if not ok.any():
-            return np.zeros((0, 3)), np.zeros(0)
-        v, u = np.nonzero(ok)
-        p_cam = self.map_intrinsics.unproject_idepth(u, v, idepth[ok])
-        T = ref.T_world_ref
-        return p_cam @ T[:3, :3].T + T[:3, 3], var[ok].astype(np.float64)
+        pts, var, _ = ref.map.points_world()
+        return pts, var
 
     def close(self) -> None:
         """Stop the mapping thread (realtime mode) after it finished the pending frame."""
@@ -232,8 +256,6 @@ class VisualOdometry:
                 self._cond.notify_all()
             self._thread.join()
             self._thread = None
-        for s in self.sinks:
-            s.on_finish()
         if self._map_error is not None:
             raise LiteVOError(f"mapping thread failed: {self._map_error}") from self._map_error
 
@@ -276,10 +298,9 @@ class VisualOdometry:
     def _preprocess(self, image: np.ndarray, timestamp: float, depth: np.ndarray | None) -> _Frame:
         t = time.perf_counter()
         if image.ndim == 3:
-            import cv2
             image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         img = self._rectifier(image)
-        pyr = self._image_pyramid(img, self.config.resolution.pyramid_levels)
+        pyr = image_pyramid(img, self.config.resolution.pyramid_levels)
         depth_m = self._rectifier.depth(depth) if depth is not None else None
         self.timers.add("preprocess", (time.perf_counter() - t) * 1e3)
         if self._t0 is None:
@@ -293,18 +314,14 @@ class VisualOdometry:
         with self._ref_lock:
             return self._reference
 
-    def _publish(self, ref: _Reference, frame: _Frame, idepth, idepth_var, valid, mapper) -> None:
+    def _publish(self, ref: _Reference, mapper) -> None:
         with self._ref_lock:
             if mapper is not self._mapper:  # a map built by a mapper that was replaced meanwhile
                 return
             self._reference = ref
-        if self.sinks:
-            d, v = _nan_where_empty(idepth, idepth_var, valid)
-            for s in self.sinks:
-                s.on_map(frame.index, frame.timestamp, ref.T_world_ref, d, v, self.map_intrinsics)
+            self._published.append(ref.map)
 
     def _build_reference(self, frame: _Frame, idepth, idepth_var, valid) -> _Reference:
-        from .tracking import TrackingReference
         t = time.perf_counter()
         tref = TrackingReference.build(frame.pyramid, idepth, idepth_var, valid, self.map_intrinsics, frame.index,
                                        smooth_sigma=self.config.tracking.smooth_sigma,
@@ -313,10 +330,12 @@ class VisualOdometry:
         arrays = [np.array(a) for a in (idepth, idepth_var, valid)]
         for a in arrays:
             a.setflags(write=False)
-        return _Reference(tref, frame.T_world_cam.copy(), frame.index, *arrays)
+        T = frame.T_world_cam.copy()
+        T.setflags(write=False)
+        published = PublishedMap(frame.index, frame.timestamp, T, self.map_intrinsics, frame.image, *arrays)
+        return _Reference(tref, published)
 
     def _new_mapper(self):
-        from .mapping import Mapper
         seed = self._rng_seed + self._mapper_count
         self._mapper_count += 1
         return Mapper(self.config.mapping, self.map_intrinsics, seed=seed)
@@ -328,12 +347,10 @@ class VisualOdometry:
         self._stop_mapping_work()
         with self._ref_lock:
             self._mapper = mapper
-        self._publish(ref, frame, idepth, idepth_var, valid, mapper)
+        self._publish(ref, mapper)
 
     def _initialize(self, frame: _Frame, T_world_cam: np.ndarray, event: str) -> FrameResult:
         """(Re-)initialise the map in ``frame`` (depth image or random depth) with a new mapper."""
-        from .bootstrap import InitVerifier
-        from .mapping import MapFrame
         init = self.config.system.init
         use_depth = init == "depth" or (init == "auto" and frame.depth_m is not None)
         if use_depth and frame.depth_m is None:
@@ -422,7 +439,6 @@ class VisualOdometry:
 
     def _apply_bootstrap(self, boot, frame: _Frame, quality: dict) -> FrameResult:
         """Replace a badly initialised random map: replay the filter with two-view + PnP poses."""
-        from .mapping import MapFrame
         t = time.perf_counter()
         boot_world = boot.T_world_init
         mapper = self._new_mapper()
@@ -478,7 +494,6 @@ class VisualOdometry:
             self._initialized = True
             self.metric = True
         else:
-            from .tracking import depth_image_idepth
             idepth, valid = depth_image_idepth(prev.image, prev.depth_m, self.config.tracking)
             var = np.full_like(idepth, self.config.mapping.depth_init_var)
             ref = self._build_reference(prev, idepth, var, valid)
@@ -511,7 +526,6 @@ class VisualOdometry:
         in_startup = frame.timestamp - self._t0 < self.config.system.startup_s
         if self._thread is None:  # sync
             if not self._mapping_due(frame):
-                from .mapping import MapFrame
                 # not mapped, but still a stereo reference for later frames
                 self._mapper.add_reference(MapFrame(frame.index, frame.timestamp, frame.image,
                                                     frame.T_world_cam, frame.residual))
@@ -534,7 +548,6 @@ class VisualOdometry:
     def _mapping_loop(self) -> None:
         try:
             if self.config.system.numba_threads > 0:  # numba's thread count is per calling thread
-                import numba
                 numba.set_num_threads(min(self.config.system.numba_threads, numba.config.NUMBA_NUM_THREADS))
             while True:
                 with self._cond:
@@ -549,7 +562,6 @@ class VisualOdometry:
             self._map_error = err
 
     def _map_frame(self, frame: _Frame) -> None:
-        from .mapping import MapFrame
         t = time.perf_counter()
         mapper = frame.mapper
         if mapper is not self._mapper:
@@ -562,13 +574,12 @@ class VisualOdometry:
         ref = self._build_reference(frame, idepth, idepth_var, valid)
         self.timers.add("mapping", (time.perf_counter() - t) * 1e3)
         self.counts["mapped"] += 1
-        self._publish(ref, frame, idepth, idepth_var, valid, mapper)
+        self._publish(ref, mapper)
         self._record_depth_accuracy(frame, idepth, valid)
 
     def _record_depth_accuracy(self, frame: _Frame, idepth=None, valid=None) -> None:
         if frame.depth_m is None:
             return
-        from .mapping import depth_accuracy
         if idepth is None:
             idepth, _, valid = self._mapper.current()
         scale = 1.0
@@ -582,8 +593,3 @@ class VisualOdometry:
         acc = {"frame": frame.index, "t": frame.timestamp - self._t0, "scale": scale, **acc}
         self.depth_accuracy_series.append(acc)
 
-
-def _nan_where_empty(idepth, idepth_var, valid) -> tuple[np.ndarray, np.ndarray]:
-    """float32 copies of a map with NaN where there is no hypothesis (the public map format)."""
-    return (np.where(valid, idepth, np.nan).astype(np.float32),
-            np.where(valid, idepth_var, np.nan).astype(np.float32))

@@ -10,28 +10,39 @@ kernel, worse on an ARM board); later processes load the machine code from numba
 (``__pycache__`` beside the sources, or ``NUMBA_CACHE_DIR``). The cache is tied to the CPU
 model, so run ``lite-vo warmup`` once on the target board after installing.
 
+Plug-ins (e.g. the AR demo) contribute their kernel modules through the entry-point group
+``lite_vo.kernels`` (name = anything, value = a module with ``warmup()``), so the core names none
+of them; a plug-in module whose optional dependencies are missing is skipped with a note.
+
 Imports: the standard library only at module level. The kernel modules are imported by name
-(``importlib``) when :func:`warmup` runs; ``ar_demo._kernels`` is optional and only used when
-importable (``lite_vo`` has no code dependency on ``ar_demo``).
+(``importlib``) when :func:`warmup` runs.
 """
 from __future__ import annotations
 
 import importlib
 import time
 from dataclasses import asdict, dataclass
+from importlib.metadata import entry_points
 from typing import Callable, Iterable
 
-#: Kernel modules in warm-up order; each exposes ``warmup() -> None``.
-KERNEL_MODULES: tuple[str, ...] = (
-    "lite_vo.image",
-    "lite_vo.tracking._kernels",
-    "lite_vo.mapping._kernels",
-    "lite_vo.synth._kernels",
-    "ar_demo._kernels",
-)
+#: The kernels every run needs (loaded before a run's clock starts).
+CORE_KERNEL_MODULES: tuple[str, ...] = ("lite_vo.image", "lite_vo.tracking._kernels", "lite_vo.mapping._kernels")
 
-#: Modules whose absence (or missing dependencies) is normal: they belong to optional extras.
-OPTIONAL_MODULES: frozenset[str] = frozenset({"ar_demo._kernels"})
+#: The core's kernel modules in warm-up order; each exposes ``warmup() -> None``.
+KERNEL_MODULES: tuple[str, ...] = CORE_KERNEL_MODULES + ("lite_vo.synth._kernels",)
+
+#: Entry-point group through which plug-ins register kernel modules.
+KERNEL_ENTRY_POINTS = "lite_vo.kernels"
+
+
+def plugin_kernel_modules() -> tuple[str, ...]:
+    """Kernel modules registered by installed plug-ins (entry points ``lite_vo.kernels``)."""
+    return tuple(sorted(ep.value for ep in entry_points(group=KERNEL_ENTRY_POINTS)))
+
+
+def all_kernel_modules() -> tuple[str, ...]:
+    """The core's kernel modules followed by the plug-ins'."""
+    return KERNEL_MODULES + tuple(m for m in plugin_kernel_modules() if m not in KERNEL_MODULES)
 
 
 @dataclass(frozen=True)
@@ -72,7 +83,7 @@ def warmup_module(module: str) -> ModuleWarmup:
     except ModuleNotFoundError as err:
         if _is_missing(err, module):
             return ModuleWarmup(module, "missing", message="module not found (skipped)")
-        if module in OPTIONAL_MODULES:
+        if module in plugin_kernel_modules():  # a plug-in whose optional dependency is not installed
             return ModuleWarmup(module, "missing",
                                 message=f"optional dependency {err.name!r} not installed (skipped)")
         return ModuleWarmup(module, "error", time.perf_counter() - t0,
@@ -95,13 +106,13 @@ def warmup_module(module: str) -> ModuleWarmup:
 
 def warmup(modules: Iterable[str] | None = None,
            on_result: Callable[[ModuleWarmup], None] | None = None) -> list[ModuleWarmup]:
-    """Warm up every module in ``modules`` (default: all kernel modules), in order.
+    """Warm up every module in ``modules`` (default: the core's and the plug-ins' kernel modules), in order.
 
     ``on_result`` is called after each module (e.g. to print progress). Returns one
     :class:`ModuleWarmup` per module; check ``status == "error"`` for failures.
     """
     results = []
-    for module in (KERNEL_MODULES if modules is None else modules):
+    for module in (all_kernel_modules() if modules is None else modules):
         res = warmup_module(module)
         results.append(res)
         if on_result is not None:

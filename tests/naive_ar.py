@@ -78,8 +78,8 @@ def inpaint_naive(u0, f, w, alpha, delta, iterations, tol):
 # ----------------------------------------------------------------------------- analytic scenes
 def look_at(eye, target, up=(0.0, 0.0, 1.0)):
     """T_world_cam of an OpenCV camera (x right, y down, z forward) at ``eye`` looking at ``target``
-    (:func:`ar_demo.pipeline.look_at` with world z up by default)."""
-    from ar_demo.pipeline import look_at as _look_at
+    (:func:`ar_demo.video.look_at` with world z up by default)."""
+    from ar_demo.video import look_at as _look_at
     return _look_at(eye, target, up)
 
 

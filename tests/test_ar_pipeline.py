@@ -13,7 +13,8 @@ pytest.importorskip("moderngl", reason="the AR demo needs the [ar] extra (modern
 pytest.importorskip("pybullet", reason="the AR demo needs the [ar] extra (pybullet)")
 
 from ar_demo.config import ARConfig
-from ar_demo.pipeline import run_ar, semi_dense_from_depth, write_summary
+from ar_demo.run import run_ar, write_summary
+from ar_demo.world import semi_dense_from_depth
 from ar_demo.render import RenderUnavailable, create_context
 from ar_demo.video import VideoWriter, colorize_idepth, compose_panels, read_video_info
 from lite_vo.cli.main import main
@@ -39,7 +40,7 @@ def sequence(tmp_path_factory):
 
 
 def _cfg(**kw):
-    base = dict(start_after_s=0.0, world_update_every=2, gt_map_width=W)
+    base = dict(start_after_s=0.0, world_update_every=2)
     base.update(kw)
     return ARConfig(**base)
 
@@ -107,7 +108,7 @@ def test_run_ar_with_the_visual_odometry(egl, sequence, tmp_path):
 def test_cli_ar_and_refuses_overwrite(egl, sequence, tmp_path, capsys):
     out = tmp_path / "cli.mp4"
     args = ["ar", str(sequence), "--out", str(out), "--poses", "gt", "--max-frames", "4", "--quiet",
-            "--ar-set", f"gt_map_width={W}", "--ar-set", "start_after_s=0"]
+            "--ar-set", "start_after_s=0", "--set", "resolution.map_width=160"]
     assert main(args) == 0
     assert read_video_info(out)[0] == 4
     assert main(args) == 1                                             # exists, no --force
@@ -124,8 +125,8 @@ def test_cli_demo_refuses_non_empty_folder(tmp_path, capsys):
 
 
 def test_cli_modules_import_no_ar_packages():
-    code = ("import sys, lite_vo.cli.ar, lite_vo.cli.demo, lite_vo.cli.main as m; m.build_parser(); "
-            "bad = [k for k in ('ar_demo', 'pybullet', 'moderngl', 'trimesh') if k in sys.modules]; "
+    code = ("import sys, ar_demo.cli.ar, ar_demo.cli.demo, lite_vo.cli.main as m; m.build_parser(); "
+            "bad = [k for k in ('pybullet', 'moderngl', 'trimesh') if k in sys.modules]; "
             "print(','.join(bad)); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, f"imported at module level: {r.stdout} {r.stderr}"
@@ -138,33 +139,34 @@ def test_cli_ar_without_the_extra_says_how_to_install(monkeypatch, tmp_path, cap
 
 
 def test_sink_resets_world_on_monocular_reinit(egl, tmp_path):
-    """ARSink fed by hand (as the VO would): starts the world, and a monocular re-initialisation
+    """ARSink fed by hand (as the session would): starts the world, and a monocular re-initialisation
     (new scale) restarts it; a lost frame writes the camera image only."""
-    from types import SimpleNamespace
-
-    from ar_demo.pipeline import ARSink
+    import lite_vo
+    from ar_demo.sink import ARSink
     from lite_vo.camera import PinholeIntrinsics
+    from lite_vo.session import FrameEvent, PublishedMap, RunEnd, SessionInfo
+    from lite_vo.system import FrameResult
     from naive_ar import idepth_from_depth, look_at, raycast_depth
 
     intr = PinholeIntrinsics(120.0, 120.0, 79.5, 59.5, 160, 120)
     T = look_at([0.0, 0.0, 1.0], [2.0, 0.0, 0.0])
     depth, _ = raycast_depth(T, intr.K, 160, 120, boxes=[(1.5, -0.3, 0, 1.9, 0.3, 0.3)])
     idepth = idepth_from_depth(depth)
+    valid = np.isfinite(idepth)
     var = np.full(idepth.shape, 1e-4)
-    sink = ARSink(_cfg(start_after_monocular_s=0.0, ground_min_support=50), intr, tmp_path / "s.mp4", fps=10)
+    sink = ARSink(_cfg(start_after_monocular_s=0.0, ground_min_support=50), tmp_path / "s.mp4", fps=10)
+    sink.on_start(SessionInfo("hand", "hand", 7, lite_vo.load_profile("phone"), "phone", intr, intr))
     image = np.full((120, 160), 100.0, np.float32)
     for i in range(6):
         event = "init" if i == 0 else "reinit" if i == 4 else ""
         quality = {"init": "random"} if event else {}
-        sink.on_map(i, i * 0.1, T, idepth, var, intr)
-        sink.on_frame(SimpleNamespace(index=i, timestamp=i * 0.1, T_world_cam=T, lost=False, event=event,
-                                      quality=quality), image)
+        sink.on_map(PublishedMap(i, i * 0.1, T, intr, image, np.nan_to_num(idepth), var, valid))
+        sink.on_frame(FrameEvent(FrameResult(i, i * 0.1, T, False, quality, event=event), image))
         if i == 2:
-            assert sink.physics is not None and sink.metric is False
-            assert sink.ground.source == "ransac"                     # no accelerometer given
-    sink.on_frame(SimpleNamespace(index=6, timestamp=0.6, T_world_cam=None, lost=True, event="lost", quality={}),
-                  image)
-    sink.on_finish()
+            assert sink.world.started and sink.metric is False
+            assert sink.world.ground.source == "ransac"               # no accelerometer given
+    sink.on_frame(FrameEvent(FrameResult(6, 0.6, None, True, {}, event="lost"), image))
+    sink.on_finish(RunEnd("ok", {}, {}, [], False))
     assert any("reset" in e for e in sink.summary["events"])
     assert sum(e.startswith("start") for e in sink.summary["events"]) == 2
     assert read_video_info(tmp_path / "s.mp4") == (7, 160, 120)

@@ -176,7 +176,7 @@ def test_ground_plane_imu_only_when_refinement_disabled():
 def test_ground_plane_on_lite_vo_synth_room():
     """The synthetic room (floor z = 0, z up) with its accelerometer: hand-held motion biases the
     low-pass gravity; the refined plane is within 2 deg and 2 cm."""
-    from ar_demo.pipeline import semi_dense_from_depth
+    from ar_demo.world import semi_dense_from_depth
     from lite_vo.synth import default_intrinsics, iter_frames
     K = default_intrinsics(160, 120)
     f = GravityFilter(1.0)

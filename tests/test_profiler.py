@@ -467,7 +467,10 @@ def test_warmup_cli_prints_each_module_and_fails_on_errors(tmp_path, monkeypatch
     import lite_vo.warmup as W
     from lite_vo.cli.main import main
     assert {"lite_vo.image", "lite_vo.tracking._kernels", "lite_vo.mapping._kernels",
-            "lite_vo.synth._kernels", "ar_demo._kernels"} <= set(W.KERNEL_MODULES)
+            "lite_vo.synth._kernels"} <= set(W.KERNEL_MODULES)
+    assert "ar_demo._kernels" in W.plugin_kernel_modules()            # registered by the plug-in
+    assert not any(m.startswith("ar_demo") for m in W.KERNEL_MODULES)  # the core names no plug-in
+    monkeypatch.setattr(W, "plugin_kernel_modules", lambda: ())
     pkg = tmp_path / "wpkg2"
     pkg.mkdir()
     (pkg / "__init__.py").write_text("")

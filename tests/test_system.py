@@ -10,7 +10,7 @@ from lite_vo.errors import InputError
 from lite_vo.eval import evaluate
 from lite_vo.io import Trajectory
 from lite_vo.runner import run_sequence
-from lite_vo.system import OutputSink, VisualOdometry
+from lite_vo.system import VisualOdometry
 
 
 def _traj(res):
@@ -75,32 +75,18 @@ def test_realtime_mode_uses_a_mapping_thread_and_tracks(synth_small):
     assert rt["ate_rmse_m"] < max(3 * sync["ate_rmse_m"], 0.01), (rt, sync)
 
 
-class _Recorder(OutputSink):
-    def __init__(self):
-        self.frames, self.maps, self.finished = [], [], 0
-
-    def on_frame(self, result, image):
-        self.frames.append((result.index, result.lost, image.shape))
-
-    def on_map(self, frame_id, timestamp, T_world_cam, idepth, idepth_var, intrinsics):
-        self.maps.append((frame_id, idepth.shape, int(np.isfinite(idepth).sum())))
-
-    def on_finish(self):
-        self.finished += 1
-
-
 def test_loss_is_reported_as_a_gap_and_tracking_recovers(synth_small):
     seq, frames = _frames(synth_small, 36)
     cfg = lite_vo.load_profile("phone", ['system.init="depth"'])
-    rec = _Recorder()
     rng = np.random.default_rng(0)
-    results = []
-    with VisualOdometry(seq.camera, cfg, sinks=[rec]) as vo:
+    results, maps = [], []
+    with VisualOdometry(seq.camera, cfg) as vo:
         for fr in frames:
             img = fr.image
             if 20 <= fr.index < 24:  # the camera is covered: noise
                 img = rng.integers(0, 255, size=img.shape, dtype=np.uint8)
             results.append(vo.process(img, fr.timestamp, depth=fr.depth))
+            maps += vo.take_published_maps()
     lost = [r.index for r in results if r.lost]
     assert set(lost) == {20, 21, 22, 23}
     assert all(r.T_world_cam is None for r in results if r.lost)
@@ -112,8 +98,11 @@ def test_loss_is_reported_as_a_gap_and_tracking_recovers(synth_small):
     T0 = np.linalg.inv(gt[0])
     err = np.linalg.norm((T0 @ gt[35])[:3, 3] - results[35].T_world_cam[:3, 3])
     assert err < 0.03
-    assert len(rec.frames) == 36 and rec.finished == 1
-    assert rec.maps and rec.maps[0][1] == (vo.map_intrinsics.height, vo.map_intrinsics.width)
+    # every published map reached the caller once, in order, at mapping resolution
+    assert maps and maps[0].frame_index == 0 and maps[0].idepth.shape == (vo.map_intrinsics.height, vo.map_intrinsics.width)
+    assert [m.frame_index for m in maps] == sorted({m.frame_index for m in maps})
+    assert not any(m.frame_index in range(20, 24) for m in maps)     # lost frames are not mapped
+    assert vo.take_published_maps() == []
 
 
 def test_long_loss_reinitialises_the_map(synth_small):

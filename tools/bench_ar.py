@@ -43,7 +43,8 @@ def main(argv=None) -> int:
     from ar_demo import _kernels
     from ar_demo.config import ARConfig
     from ar_demo.ground import GroundPlane
-    from ar_demo.pipeline import run_ar, semi_dense_from_depth
+    from ar_demo.run import run_ar
+    from ar_demo.world import semi_dense_from_depth
     from lite_vo.timing import timing_stats
     from ar_demo.world_model import build_world_model
     import lite_vo

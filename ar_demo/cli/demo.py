@@ -3,8 +3,8 @@
 Generates a small synthetic room sequence (with boxes on the floor as obstacles) via
 :mod:`lite_vo.synth`, runs the visual odometry and the AR demo on it and writes ``demo.mp4``,
 ``trajectory.txt`` and ``summary.json`` / ``summary.txt`` into a folder (default
-``./lite_vo_demo``). Needs the ``[ar]`` extra. Never imports ar_demo, pybullet, moderngl or
-trimesh at module level.
+``./lite_vo_demo``). Needs the ``[ar]`` extra. Registered through the ``lite_vo.commands``
+entry point; never imports pybullet, moderngl or trimesh at module level.
 """
 from __future__ import annotations
 
@@ -36,15 +36,14 @@ def run(args) -> int:
     import sys
     import tempfile
 
-    from ..errors import InputError
-    from .ar import _import_ar, progress_printer
+    from lite_vo.errors import InputError
+    from lite_vo.io import prepare_output_dir
+    from lite_vo.synth import generate_sequence
 
-    pipeline = _import_ar()
-    from ar_demo.config import ARConfig
+    from ..config import ARConfig
+    from .ar import import_ar
 
-    from ..synth import generate_sequence
-
-    from ..io import prepare_output_dir
+    ar_run = import_ar()
     if args.frames < 10:
         raise InputError(f"--frames must be at least 10, got {args.frames}")
     out = prepare_output_dir(Path(args.out), args.force)
@@ -60,12 +59,12 @@ def run(args) -> int:
         generate_sequence(seq_dir, scene="room", trajectory="handheld", n_frames=args.frames, seed=args.seed,
                           force=True)
         say(f"running the visual odometry ({args.poses}) and the AR demo ...")
-        summary = pipeline.run_ar(seq_dir, out / "demo.mp4", profile=args.profile, poses=args.poses,
-                                  cfg=ARConfig(panels=not args.no_panels), trajectory_out=out / "trajectory.txt",
-                                  mesh_out=out / "collision_mesh.ply", progress=progress_printer(args.quiet))
+        summary = ar_run.run_ar(seq_dir, out / "demo.mp4", profile=args.profile, poses=args.poses,
+                                cfg=ARConfig(panels=not args.no_panels), trajectory_out=out / "trajectory.txt",
+                                mesh_out=out / "collision_mesh.ply", quiet=args.quiet)
         summary["sequence"] = "synthetic room (lite_vo.synth, scene=room, trajectory=handheld, "\
                               f"seed={args.seed}, {args.frames} frames)"
-        pipeline.write_summary(summary, out)
+        ar_run.write_summary(summary, out)
     finally:
         if tmp is not None:
             tmp.cleanup()

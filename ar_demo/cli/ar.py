@@ -1,6 +1,7 @@
-"""``lite-vo ar``: argparse only; the work is :func:`ar_demo.pipeline.run_ar` (needs the ``[ar]`` extra).
+"""``lite-vo ar``: argparse only; the work is :func:`ar_demo.run.run_ar` (needs the ``[ar]`` extra).
 
-This module never imports ar_demo, pybullet, moderngl or trimesh at module level.
+Registered through the ``lite_vo.commands`` entry point; imports pybullet, moderngl and trimesh
+only when the command runs.
 """
 from __future__ import annotations
 
@@ -38,39 +39,29 @@ def add_parser(sub) -> argparse.ArgumentParser:
     return p
 
 
-def _import_ar():
-    from ..errors import MissingExtraError
+def import_ar():
+    """The :mod:`ar_demo.run` module, or a one-line error saying how to install the extra."""
+    from lite_vo.errors import MissingExtraError
     try:
         import moderngl  # noqa: F401
         import pybullet  # noqa: F401
         import trimesh  # noqa: F401
-
-        import ar_demo.pipeline as pipeline
     except ImportError as err:
-        raise MissingExtraError(AR_EXTRA_MESSAGE) from err
-    return pipeline
-
-
-def progress_printer(quiet: bool):
-    import sys
-    if quiet:
-        return None
-
-    def show(i, n):
-        if i == n or i % 10 == 0:
-            print(f"\r  frame {i}/{n}", end="\n" if i == n else "", file=sys.stderr, flush=True)
-    return show
+        raise MissingExtraError(f"{AR_EXTRA_MESSAGE} ({err.name} is missing)") from err
+    from .. import run as ar_run
+    return ar_run
 
 
 def run(args) -> int:
-    from ..errors import InputError
-    pipeline = _import_ar()
-    from ar_demo.config import ar_config
+    from lite_vo.errors import InputError
+    from lite_vo.io import check_output_file
+
+    from ..config import ar_config
+    ar_run = import_ar()
 
     out = Path(args.out)
     if out.suffix.lower() != ".mp4":
         raise InputError(f"{out}: the output video must end in .mp4")
-    from ..io import check_output_file
     for path in (out, args.mesh, args.trajectory):
         if path is not None:
             check_output_file(path, args.force)
@@ -79,10 +70,10 @@ def run(args) -> int:
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError(f"--max-frames must be positive, got {args.max_frames}")
     cfg = ar_config(args.ar_overrides)
-    summary = pipeline.run_ar(args.sequence, out, profile=args.profile, poses=args.poses,
-                              max_frames=args.max_frames, cfg=cfg, panels=args.panels or None,
-                              overrides=args.overrides, trajectory_out=args.trajectory, mesh_out=args.mesh,
-                              progress=progress_printer(args.quiet), vo_mode=args.mode)
+    summary = ar_run.run_ar(args.sequence, out, profile=args.profile, poses=args.poses,
+                            max_frames=args.max_frames, cfg=cfg, panels=args.panels or None,
+                            overrides=args.overrides, trajectory_out=args.trajectory, mesh_out=args.mesh,
+                            quiet=args.quiet, vo_mode=args.mode)
     t = summary["timing_ms"]
     if not summary["frames_written"]:
         raise InputError(f"{args.sequence}: no frames were processed, no video written")

@@ -1,0 +1,182 @@
+"""The AR demo as a plain output sink of the frame driver (:mod:`lite_vo.session`).
+
+:class:`ARSink` wires the parts: every published map goes to the :class:`~ar_demo.world.ARWorld`
+(ground plane, collision world, car) once it supports a ground plane, and every k-th frame a newer
+map rebuilds the collision mesh; each frame advances the simulation by the frame's time and hands
+an immutable :class:`~ar_demo.video.RenderJob` to the :class:`~ar_demo.video.ARVideo` (the render
+thread draws it over the full-resolution rectified camera image, colour when the source is colour).
+``on_finish`` closes everything and fills :attr:`ARSink.summary`.
+
+All methods run on the session's thread (the world-model worker and the render thread own only
+what they are handed).
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from lite_vo.session import FrameEvent, OutputSink, PublishedMap, RunEnd, SessionInfo
+from lite_vo.timing import timing_stats
+
+from .config import ARConfig
+from .video import ARVideo, FrameComposer, RenderJob
+from .world import ARWorld
+
+
+class ARSink(OutputSink):
+    """AR world + video from a VO session (see the module docstring)."""
+    wants_image = True
+
+    def __init__(self, cfg: ARConfig, out_video, fps: float = 30.0, metric: bool | None = None,
+                 renderer=None, mesh_out=None) -> None:
+        self.cfg = cfg
+        self.out_video = Path(out_video)
+        self.fps = float(cfg.video_fps or fps)
+        self._metric_auto = metric is None and not cfg.metric
+        self.metric = cfg.metric if metric is None else bool(metric)
+        self.mesh_out = Path(mesh_out) if mesh_out else None
+        self._renderer = renderer
+        self.world: ARWorld | None = None
+        self.video: ARVideo | None = None
+        self.car_parts = None
+        self.camera = None
+        self._map: PublishedMap | None = None
+        self._map_seq = 0
+        self._submitted_seq = -1
+        self._first_map_ts = None
+        self._prev_ts = None
+        self._frames = 0
+        self.times = {"simulation": [], "frame": []}
+        self.car_path: list[np.ndarray] = []
+        self.summary: dict = {}
+
+    # ------------------------------------------------------------------ session events
+    def on_start(self, info: SessionInfo) -> None:
+        from .render import ARRenderer, load_racecar_parts
+        cfg = self.cfg
+        self.camera = info.camera
+        self.car_parts = load_racecar_parts()
+        self.world = ARWorld(cfg, info.camera, self.metric, info.accelerometer)
+
+        def make_renderer():
+            return ARRenderer(ambient=cfg.render_ambient,
+                              occluder_offset=(1.0 if cfg.occluder_offset > 0 else 0.0, cfg.occluder_offset))
+        self.video = ARVideo(self.out_video, self.fps, FrameComposer(cfg, info.camera), make_renderer,
+                             threaded=cfg.render_thread, queue_size=cfg.render_queue, renderer=self._renderer)
+
+    def on_map(self, published: PublishedMap) -> None:
+        self._map = published
+        self._map_seq += 1
+
+    def on_corrections(self, corrections: dict) -> None:
+        # the two-view bootstrap replaced the map and earlier poses: a monocular world built on the
+        # old map has another scale, so it starts over on the new one
+        if self.world.started and not self.metric:
+            self.world.reset("the VO re-estimated its map and earlier poses")
+            self._first_map_ts = None
+
+    def on_frame(self, event: FrameEvent) -> None:
+        t_frame = time.perf_counter()
+        result = event.result
+        ts = float(result.timestamp)
+        world = self.world
+        if self._metric_auto and result.event in ("init", "reinit"):
+            init = (result.quality or {}).get("init")
+            if init is not None:                 # the VO says how its map was initialised
+                self.metric = world.metric = init == "depth"
+        if result.event == "reinit" and world.started and not self.metric:
+            world.reset("re-initialisation of the VO map")   # a new monocular map has a new scale
+            self._first_map_ts = None
+        T = None if result.T_world_cam is None or result.lost else np.asarray(result.T_world_cam)
+        if T is not None:
+            world.feed_imu(ts, T)
+        the_map = self._map
+        if not world.started and T is not None and the_map is not None:
+            if self._first_map_ts is None:
+                self._first_map_ts = ts
+            wait = self.cfg.start_after_s if self.metric else max(self.cfg.start_after_s,
+                                                                   self.cfg.start_after_monocular_s)
+            if ts - self._first_map_ts >= wait and world.start(the_map):
+                self._submitted_seq = self._map_seq
+        dt = 0.0 if self._prev_ts is None else max(0.0, ts - self._prev_ts)
+        self._prev_ts = ts
+        if world.started:
+            if (self._frames % self.cfg.world_update_every == 0 and the_map is not None
+                    and self._map_seq != self._submitted_seq):
+                world.submit(the_map)
+                self._submitted_seq = self._map_seq
+            world.swap_in()
+            t0 = time.perf_counter()
+            world.step(dt, T)
+            self.times["simulation"].append((time.perf_counter() - t0) * 1e3)
+            self.car_path.append(world.physics.car_state().T_phys_base[:3, 3].copy())
+        self.video.put(self._job(event, T, the_map))
+        self._frames += 1
+        self.times["frame"].append((time.perf_counter() - t_frame) * 1e3)
+
+    def on_finish(self, end: RunEnd) -> None:
+        world = self.world
+        if world is None:                        # never started
+            return
+        try:
+            self.video.close()                   # renders the queued frames; the .mp4 is playable
+        finally:
+            if self.mesh_out is not None and world.model is not None:
+                world.model.mesh.export(self.mesh_out)
+            self.summary = self._summary()
+            world.close()
+
+    # ------------------------------------------------------------------ helpers
+    def _background(self, event: FrameEvent) -> np.ndarray:
+        img = event.image
+        if img is None:                          # only the mapping-resolution image: upsample it
+            img = cv2.resize(np.clip(event.image_map, 0, 255).astype(np.uint8),
+                             (self.camera.width, self.camera.height), interpolation=cv2.INTER_LINEAR)
+        if img.ndim == 3:
+            img = img[..., ::-1]                 # BGR -> RGB (the video frames are RGB)
+        return np.ascontiguousarray(img)
+
+    def _job(self, event: FrameEvent, T, the_map) -> RenderJob:
+        """Everything one video frame needs, as immutable data (safe to hand to the render thread)."""
+        from .render import car_objects
+        world = self.world
+        mesh = world.model.mesh if world.model is not None else None
+        objects = []
+        if T is not None and world.started and world.physics.car >= 0:
+            objects = car_objects(self.car_parts, world.physics.link_poses_phys(), world.physics.frame.S_world_phys)
+        depth = world.scene_depth or 1.0
+        return RenderJob(
+            background=self._background(event), T_world_cam=T,
+            near_far=(self.cfg.near_rel * depth, self.cfg.far_rel * depth),
+            occluder=(mesh.vertices_world, mesh.faces) if mesh is not None else None,
+            objects=objects, idepth=the_map.idepth if (the_map is not None and self.cfg.panels) else None,
+            ground=world.ground, scene_depth=world.scene_depth)
+
+    def _summary(self) -> dict:
+        world = self.world
+        path = np.array(self.car_path) if self.car_path else np.zeros((0, 3))
+        physics = world.physics
+        ap = physics.autopilot if physics is not None else None
+        times = {"world_model": world.build_ms, "simulation": self.times["simulation"],
+                 "render": self.video.render_ms, "frame": self.times["frame"]}
+        return {
+            "video": str(self.out_video),
+            "frames_written": self.video.frames,
+            "video_size": list(self.video.size) if self.video.size is not None else None,
+            "fps": self.fps,
+            "metric": self.metric,
+            "ground_plane": None if world.ground is None else {
+                "source": world.ground.source, "normal_world": world.ground.normal_world.tolist(),
+                "height": world.ground.height},
+            "physics_scale": None if physics is None else physics.frame.scale,
+            "world_models_built": len(world.build_ms),
+            "world_swaps": 0 if physics is None else physics.world_swaps,
+            "car_distance_phys": float(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1).sum()) if len(path) > 1 else 0.0,
+            "car_reversals": 0 if ap is None else ap.reversals,
+            "car_collisions": 0 if physics is None else physics.collisions,
+            "timing_ms": {k: timing_stats(v) for k, v in times.items()},
+            "events": world.events,
+        }

@@ -1,0 +1,283 @@
+"""The output sinks of ``lite-vo run`` (contract in ARCHITECTURE.md), each one job:
+
+* :class:`TrajectorySink`: ``trajectory.txt`` (TUM, ``T_world_cam``) appended and flushed as the run
+  goes (at least every second or every 30 frames), rewritten atomically when earlier poses are
+  corrected and once more at the end, so a killed process leaves every pose it had flushed;
+* :class:`RunInfoSink`: ``run.json`` (written at the start with status ``running``, again at the end
+  with the final status), ``timing.json``, and the depth accuracy files when the sequence has depth;
+* :class:`MapSink`: ``map.ply``, the semi-dense points of the last published map;
+* :class:`ProgressSink`: a progress bar on a terminal (tqdm), a plain line every few seconds when
+  the output is piped.
+
+All of them are plain :class:`~lite_vo.session.OutputSink` objects called on the session's thread.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .geometry import tum_from_pose
+from .io import Trajectory, write_file_atomic, write_ply, write_trajectory
+from .session import FrameEvent, OutputSink, PublishedMap, RunEnd, SessionInfo
+
+log = logging.getLogger(__name__)
+
+
+def _tum_line(t: float, T: np.ndarray) -> str:
+    r = tum_from_pose(np.asarray(T, dtype=np.float64)[None])[0]
+    return f"{t:.6f} {r[0]:.9g} {r[1]:.9g} {r[2]:.9g} {r[3]:.9f} {r[4]:.9f} {r[5]:.9f} {r[6]:.9f}\n"
+
+
+class TrajectorySink(OutputSink):
+    """``trajectory.txt`` written as the run goes (see the module docstring).
+
+    ``poses`` (frame index -> (timestamp, T_world_cam)) is the trajectory with every correction
+    applied; lost frames are absent (a gap).
+    """
+
+    def __init__(self, path, flush_every_s: float = 1.0, flush_every_frames: int = 30,
+                 comment: str | None = None) -> None:
+        self.path = Path(path)
+        self.flush_every_s, self.flush_every_frames = flush_every_s, flush_every_frames
+        self.comment = comment
+        self.poses: dict[int, tuple[float, np.ndarray]] = {}
+        self._file = None
+        self._unflushed = 0
+        self._last_flush = 0.0
+
+    def on_start(self, info: SessionInfo) -> None:
+        self._rewrite()
+
+    def on_frame(self, event: FrameEvent) -> None:
+        r = event.result
+        if r.lost or r.T_world_cam is None:
+            return
+        self.poses[r.index] = (r.timestamp, r.T_world_cam)
+        self._file.write(_tum_line(r.timestamp, r.T_world_cam))
+        self._unflushed += 1
+        now = time.monotonic()
+        if self._unflushed >= self.flush_every_frames or now - self._last_flush >= self.flush_every_s:
+            self._flush(now)
+
+    def on_corrections(self, corrections: dict) -> None:
+        changed = False
+        for idx, T in corrections.items():
+            if idx in self.poses:
+                if T is None:
+                    del self.poses[idx]
+                else:
+                    self.poses[idx] = (self.poses[idx][0], T)
+                changed = True
+        if changed:
+            self._rewrite()
+
+    def on_finish(self, end: RunEnd) -> None:
+        self._rewrite(reopen=False)
+
+    def trajectory(self) -> Trajectory:
+        order = sorted(self.poses)
+        return Trajectory(np.array([self.poses[i][0] for i in order], dtype=np.float64),
+                          np.array([self.poses[i][1] for i in order], dtype=np.float64).reshape(-1, 4, 4))
+
+    def _flush(self, now: float) -> None:
+        self._file.flush()
+        self._unflushed = 0
+        self._last_flush = now
+
+    def _rewrite(self, reopen: bool = True) -> None:
+        """All poses so far, atomically (temporary file + rename); then append from there on."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+        write_trajectory(self.path, self.trajectory(), comment=self.comment)
+        if reopen:
+            self._file = open(self.path, "a", encoding="utf-8")
+            self._last_flush = time.monotonic()
+            self._unflushed = 0
+
+
+def versions() -> dict:
+    """Versions of the program and its main dependencies, and the machine it runs on."""
+    import cv2
+    import numba
+    from . import __version__
+    return {"lite_vo": __version__, "python": platform.python_version(), "numpy": np.__version__,
+            "numba": numba.__version__, "opencv": cv2.__version__, "platform": platform.platform(),
+            "machine": platform.machine(), "cpu": cpu_model()}
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``; ``platform.processor()`` elsewhere)."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key.strip().lower() in ("model name", "hardware", "cpu model"):
+                    return value.strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def summarize_depth_accuracy(series: list[dict], skip_s: float = 1.0) -> dict | None:
+    """Contract ``depth_accuracy`` over the mapped frames after the first ``skip_s`` seconds."""
+    rows = [r for r in series if r["t"] >= skip_s and np.isfinite(r.get("median_abs_rel_error", np.nan))]
+    if not rows:
+        rows = [r for r in series if np.isfinite(r.get("median_abs_rel_error", np.nan))]
+    if not rows:
+        return None
+    return {
+        "density": float(np.mean([r["density"] for r in rows])),
+        "median_abs_rel_error": float(np.median([r["median_abs_rel_error"] for r in rows])),
+        "within_5pct": float(np.mean([r["within_5pct"] for r in rows])),
+        "within_10pct": float(np.mean([r["within_10pct"] for r in rows])),
+        "frames": len(rows),
+    }
+
+
+def plot_depth_error(series: list[dict], path: Path, title: str) -> bool:
+    """Depth error over time (thesis Fig. 5.8) as a PNG; False when matplotlib is missing."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
+    t = [r["t"] for r in series]
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(t, [100 * r["median_abs_rel_error"] for r in series], label="median |rel. error| (%)")
+    ax.plot(t, [100 * (1 - r["within_10pct"]) for r in series], label="outside 10% (%)")
+    ax.plot(t, [100 * r["density"] for r in series], label="density (% of pixels)")
+    ax.set_xlabel("time since start (s)")
+    ax.set_ylim(bottom=0)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return True
+
+
+class RunInfoSink(OutputSink):
+    """``run.json`` (at the start with status ``running``, at the end with the final status),
+    ``timing.json`` and, when the sequence has depth images, ``depth_accuracy.json`` and
+    ``depth_error.png``. ``info`` holds the last ``run.json`` content (``out_dir=None``: kept in
+    memory only)."""
+
+    def __init__(self, out_dir=None) -> None:
+        self.out = Path(out_dir) if out_dir is not None else None
+        self.info: dict = {}
+        self.timing: dict = {}
+        self._start: SessionInfo | None = None
+
+    def on_start(self, info: SessionInfo) -> None:
+        self._start = info
+        self.info = self._info("running")
+        self._write_json("run.json", self.info)
+
+    def on_finish(self, end: RunEnd) -> None:
+        s = self._start
+        depth_acc = summarize_depth_accuracy(end.depth_accuracy_series) if s.has_depth else None
+        self.info = self._info(end.status) | {
+            "depth_accuracy": depth_acc, "metric_scale": end.metric, "frames": end.frames,
+            "events": end.events[:1000]}
+        if end.error:
+            self.info["error"] = end.error
+        self.timing = end.timing
+        self._write_json("timing.json", end.timing)
+        self._write_json("run.json", self.info)
+        if end.depth_accuracy_series and self.out is not None:
+            self._write_json("depth_accuracy.json", end.depth_accuracy_series)
+            plot_depth_error(end.depth_accuracy_series, self.out / "depth_error.png",
+                             f"{s.name}: depth error over time")
+
+    def _info(self, status: str) -> dict:
+        s = self._start
+        return {
+            "profile": s.profile, "config": s.config.to_dict(), "versions": versions(),
+            "sequence": {"name": s.name, "path": s.path, "frames_total": s.frames_total,
+                         "start_frame": s.start_frame, "max_frames": s.max_frames},
+            "status": status, "depth_accuracy": None, "mode": s.config.system.mode,
+            "depth_source": s.depth_source, "pose_source": s.pose_source,
+            "machine": {"machine": platform.machine(), "cpu": cpu_model(), "cores": os.cpu_count()},
+        }
+
+    def _write_json(self, name: str, data) -> None:
+        if self.out is None:
+            return
+        write_file_atomic(self.out / name, json.dumps(data, indent=2, default=_json_default) + "\n")
+
+
+class MapSink(OutputSink):
+    """``map.ply``: the world-frame points of the last published map with their idepth variance."""
+
+    def __init__(self, path) -> None:
+        self.path = Path(path)
+        self.last: PublishedMap | None = None
+
+    def on_map(self, published: PublishedMap) -> None:
+        self.last = published
+
+    def on_finish(self, end: RunEnd) -> None:
+        if self.last is None:
+            pts, var = np.zeros((0, 3)), np.zeros(0)
+        else:
+            pts, var, _ = self.last.points_world()
+        write_ply(self.path, pts, idepth_var=var)
+
+
+class ProgressSink(OutputSink):
+    """Progress: a tqdm bar on a terminal; one plain line every ``every_s`` seconds when piped."""
+
+    def __init__(self, stream=None, every_s: float = 5.0) -> None:
+        self.stream = stream or sys.stderr
+        self.every_s = every_s
+        self._bar = None
+        self._total = None
+        self._done = self._lost = 0
+        self._t0 = self._last = 0.0
+        self._name = ""
+
+    def on_start(self, info: SessionInfo) -> None:
+        self._total, self._name = info.frames_total, info.name
+        self._t0 = self._last = time.monotonic()
+        if self.stream.isatty():
+            from tqdm import tqdm
+            self._bar = tqdm(total=info.frames_total, desc=info.name, unit="frame", file=self.stream,
+                             dynamic_ncols=True, leave=True)
+
+    def on_frame(self, event: FrameEvent) -> None:
+        self._done += 1
+        self._lost += int(event.result.lost)
+        if self._bar is not None:
+            self._bar.update(1)
+            if event.result.lost or self._done % 10 == 0:
+                self._bar.set_postfix(lost=self._lost, refresh=False)
+            return
+        now = time.monotonic()
+        if now - self._last >= self.every_s:
+            self._last = now
+            total = f"/{self._total}" if self._total else ""
+            fps = self._done / max(now - self._t0, 1e-9)
+            print(f"{self._name}: frame {self._done}{total}, {fps:.1f} fps, {self._lost} lost",
+                  file=self.stream, flush=True)
+
+    def on_finish(self, end: RunEnd) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o)}")
