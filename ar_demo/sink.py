@@ -83,7 +83,7 @@ class ARSink(OutputSink):
         result = event.result
         ts = float(result.timestamp)
         world = self.world
-        if self._metric_auto and result.event in ("init", "reinit"):
+        if self._metric_auto and result.event in ("init", "reinit", "bootstrap"):
             init = (result.quality or {}).get("init")
             if init is not None:                 # the VO says how its map was initialised
                 self.metric = world.metric = init == "depth"

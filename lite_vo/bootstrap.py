@@ -173,7 +173,7 @@ class InitVerifier:
                 found, rvec, tvec = cv2.solvePnP(pts3[ok], pts[alive_idx][ok].astype(np.float64), self.K, None,
                                                  rvec, tvec, True, flags=cv2.SOLVEPNP_ITERATIVE)
             T_j[j] = make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel()) if found else None
-        log.warning("init verification: %s at frame %d; re-initialising from two views (%d points)",
+        log.debug("start-up: %s at frame %d; the map is rebuilt from two views (%d points)",
                     reason, index, len(pts3))
         return Bootstrap(T_cur_init=T_e, T_world_init=self.T_world_init, T_j_init=T_j, frames=list(self.frames),
                          reason=reason)

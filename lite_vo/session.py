@@ -265,6 +265,7 @@ class Session:
                 last_index = fr.index
                 if res.event:
                     events.append({"frame": res.index, "t": res.timestamp, "event": res.event})
+                    _log_event(res, events)
                 if res.corrections:
                     for idx, T in res.corrections.items():   # earlier poses re-estimated (bootstrap)
                         if idx in tracked:
@@ -317,6 +318,21 @@ class Session:
             raise finish_error
         order = sorted(tracked)
         return SessionResult(end, [tracked[i][0] for i in order], [tracked[i][1] for i in order], info)
+
+
+_EVENT_TEXT = {"init": "map initialised ({init}) at frame {index}",
+               "bootstrap": "start-up: map rebuilt from two views at frame {index}; earlier poses corrected",
+               "reinit": "map re-initialised at frame {index}",
+               "lost": "tracking lost at frame {index}",
+               "recovered": "tracking recovered at frame {index}"}
+
+
+def _log_event(res: FrameResult, events: list) -> None:
+    """One INFO line per event (a run of lost frames is one line)."""
+    if res.event == "lost" and len(events) > 1 and events[-2]["event"] == "lost":
+        return
+    text = _EVENT_TEXT.get(res.event, res.event + " at frame {index}")
+    log.info(text.format(index=res.index, init=(res.quality or {}).get("init", "?")))
 
 
 def _status(frames: dict, events: list) -> str:

@@ -1,8 +1,8 @@
 """The output sinks of ``lite-vo run`` (contract in ARCHITECTURE.md), each one job:
 
-* :class:`TrajectorySink`: ``trajectory.txt`` (TUM, ``T_world_cam``) appended and flushed as the run
-  goes (at least every second or every 30 frames), rewritten atomically when earlier poses are
-  corrected and once more at the end, so a killed process leaves every pose it had flushed;
+* :class:`TrajectorySink`: ``trajectory.txt`` (TUM, ``T_world_cam``) appended line by line as the
+  run goes (each line reaches the file when its frame is done), rewritten atomically when earlier
+  poses are corrected and once more at the end, so a killed process leaves every pose it had;
 * :class:`RunInfoSink`: ``run.json`` (written at the start with status ``running``, again at the end
   with the final status), ``timing.json``, and the depth accuracy files when the sequence has depth;
 * :class:`MapSink`: ``map.ply``, the semi-dense points of the last published map;
@@ -42,15 +42,11 @@ class TrajectorySink(OutputSink):
     applied; lost frames are absent (a gap).
     """
 
-    def __init__(self, path, flush_every_s: float = 1.0, flush_every_frames: int = 30,
-                 comment: str | None = None) -> None:
+    def __init__(self, path, comment: str | None = None) -> None:
         self.path = Path(path)
-        self.flush_every_s, self.flush_every_frames = flush_every_s, flush_every_frames
         self.comment = comment
         self.poses: dict[int, tuple[float, np.ndarray]] = {}
         self._file = None
-        self._unflushed = 0
-        self._last_flush = 0.0
 
     def on_start(self, info: SessionInfo) -> None:
         self._rewrite()
@@ -60,11 +56,7 @@ class TrajectorySink(OutputSink):
         if r.lost or r.T_world_cam is None:
             return
         self.poses[r.index] = (r.timestamp, r.T_world_cam)
-        self._file.write(_tum_line(r.timestamp, r.T_world_cam))
-        self._unflushed += 1
-        now = time.monotonic()
-        if self._unflushed >= self.flush_every_frames or now - self._last_flush >= self.flush_every_s:
-            self._flush(now)
+        self._file.write(_tum_line(r.timestamp, r.T_world_cam))   # line-buffered: one whole line per write
 
     def on_corrections(self, corrections: dict) -> None:
         changed = False
@@ -86,11 +78,6 @@ class TrajectorySink(OutputSink):
         return Trajectory(np.array([self.poses[i][0] for i in order], dtype=np.float64),
                           np.array([self.poses[i][1] for i in order], dtype=np.float64).reshape(-1, 4, 4))
 
-    def _flush(self, now: float) -> None:
-        self._file.flush()
-        self._unflushed = 0
-        self._last_flush = now
-
     def _rewrite(self, reopen: bool = True) -> None:
         """All poses so far, atomically (temporary file + rename); then append from there on."""
         if self._file is not None:
@@ -98,9 +85,7 @@ class TrajectorySink(OutputSink):
             self._file = None
         write_trajectory(self.path, self.trajectory(), comment=self.comment)
         if reopen:
-            self._file = open(self.path, "a", encoding="utf-8")
-            self._last_flush = time.monotonic()
-            self._unflushed = 0
+            self._file = open(self.path, "a", encoding="utf-8", buffering=1)
 
 
 def versions() -> dict:

@@ -65,7 +65,7 @@ class FrameResult:
     lost: bool
     quality: dict = field(default_factory=dict)
     mapped: bool = False
-    event: str = ""  # "init", "reinit", "lost", "recovered" or ""
+    event: str = ""  # "init", "bootstrap" (two-view start-up), "reinit" (after a loss), "lost", "recovered" or ""
     corrections: dict = field(default_factory=dict)  # earlier frame index -> corrected T_world_cam or None
     image: np.ndarray | None = field(default=None, repr=False)  # float32 grey at mapping resolution
 
@@ -409,8 +409,8 @@ class VisualOdometry:
             self.counts["lost"] += 1
             self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
             if self._lost_count >= self.config.system.max_lost_frames and self._last_good_pose is not None:
-                log.warning("tracking lost for %d frames: re-initialising the map at frame %d",
-                            self._lost_count, frame.index)
+                log.warning("tracking lost for %d frames: re-initialising the map at frame %d (a new map%s)",
+                            self._lost_count - 1, frame.index, "" if self.metric else " with a new scale")
                 self.counts["tracked"] -= 1  # _initialize counts it; this frame is the new start
                 res = self._initialize(frame, self._last_good_pose.copy(), "reinit")
                 self.counts["tracked"] += 1
@@ -469,7 +469,7 @@ class VisualOdometry:
         idepth, _, valid = mapper.current()
         self._record_depth_accuracy(frame, idepth, valid)
         return FrameResult(frame.index, frame.timestamp, T_world_cur.copy(), False, quality, mapped=True,
-                           event="reinit", corrections=corrections)
+                           event="bootstrap", corrections=corrections)
 
     def _process_given_pose(self, frame: _Frame, T_world_cam: np.ndarray, t_start: float) -> FrameResult:
         T_world_cam = np.asarray(T_world_cam, dtype=np.float64)

@@ -28,6 +28,11 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=int, default=None, help="process at most N frames")
     p.add_argument("--start-frame", type=int, default=0, help="skip the first N frames")
     p.add_argument("--seed", type=int, default=None, help="seed of random initialisation (system.seed)")
+    p.add_argument("--calib", type=Path, default=None,
+                   help="calibration file for the source (calib.txt, OpenCV YAML, Kalibr or ROS camera_info YAML); "
+                        "overrides the sequence's own")
+    p.add_argument("--max-bad-frames", type=int, default=10,
+                   help="unreadable frames in a row that are skipped before the run stops with an error (default 10)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--force", action="store_true", help="overwrite an existing output folder")
     return p
@@ -49,14 +54,15 @@ def run(args) -> int:
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError(f"--max-frames must be positive, got {args.max_frames}")
     source = int(args.sequence) if args.sequence.isdigit() else args.sequence
-    seq = open_sequence(source)
+    seq = open_sequence(source) if args.calib is None else open_sequence(source, calib=args.calib)
     out = args.out or Path("lite_vo_out") / seq.name
     res = run_sequence(seq, config, out, force=args.force, depth_source=args.depth, pose_source=args.poses,
                        max_frames=args.max_frames, start_frame=args.start_frame, quiet=args.quiet,
-                       profile_name=args.profile)
+                       profile_name=args.profile, max_bad_frames=args.max_bad_frames)
     c = res.info["frames"]
+    skipped = f", {c['skipped']} unreadable skipped" if c.get("skipped") else ""
     msg = (f"{seq.name}: {res.status}; {c['tracked']} of {c['in']} frames tracked, {c['lost']} lost, "
-           f"{res.timing['frames']['dropped']} dropped; tracking {res.timing['tracking']['median']:.1f} ms, "
+           f"{res.timing['frames']['dropped']} dropped{skipped}; tracking {res.timing['tracking']['median']:.1f} ms, "
            f"mapping {res.timing['mapping']['median']:.1f} ms (medians); output in {out}")
     acc = res.info.get("depth_accuracy")
     if acc:
