@@ -34,6 +34,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="add side panels: semi-dense depth map and collision mesh from another viewpoint")
     p.add_argument("--mesh", type=Path, default=None, help="also export the last collision mesh (.obj or .ply)")
     p.add_argument("--trajectory", type=Path, default=None, help="also write the camera trajectory (TUM format)")
+    p.add_argument("--calib", type=Path, default=None,
+                   help="calibration file for the source (calib.txt, OpenCV YAML, Kalibr or ROS camera_info YAML)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     return p
@@ -44,8 +46,10 @@ def import_ar():
     from lite_vo.errors import MissingExtraError
     try:
         import moderngl  # noqa: F401
-        import pybullet  # noqa: F401
         import trimesh  # noqa: F401
+
+        from ..physics import import_pybullet
+        import_pybullet()
     except ImportError as err:
         raise MissingExtraError(f"{AR_EXTRA_MESSAGE} ({err.name} is missing)") from err
     from .. import run as ar_run
@@ -73,7 +77,7 @@ def run(args) -> int:
     summary = ar_run.run_ar(args.sequence, out, profile=args.profile, poses=args.poses,
                             max_frames=args.max_frames, cfg=cfg, panels=args.panels or None,
                             overrides=args.overrides, trajectory_out=args.trajectory, mesh_out=args.mesh,
-                            quiet=args.quiet, vo_mode=args.mode)
+                            quiet=args.quiet, vo_mode=args.mode, calib=args.calib)
     t = summary["timing_ms"]
     if not summary["frames_written"]:
         raise InputError(f"{args.sequence}: no frames were processed, no video written")
