@@ -230,3 +230,28 @@ def evaluate(gt: Trajectory, est: Trajectory, align: str = "sim3", delta_s: floa
         rpe_trans_mean_cm_per_s=rpe_t_mean, rpe_rot_mean_deg_per_s=rpe_r_mean, align=align,
         delta_s=float(delta_s), max_dt=float(max_dt), estimated_poses=len(est), gt_poses=len(gt),
         T_gt_est=S, ate_errors_m=err, warnings=warnings)
+
+
+@dataclass
+class PoseErrors:
+    """Per matched pose after the alignment of an :class:`EvalResult` (for plots):
+    ``timestamps`` (N,), ``gt_xyz`` and ``est_xyz`` (N, 3) camera centres (estimate aligned),
+    ``trans_err_m`` (N,) and ``rot_err_deg`` (N,) (angle of ``R_gt^T R_align R_est``)."""
+    timestamps: np.ndarray
+    gt_xyz: np.ndarray
+    est_xyz: np.ndarray
+    trans_err_m: np.ndarray
+    rot_err_deg: np.ndarray
+
+
+def pose_errors(gt: Trajectory, est: Trajectory, result: EvalResult) -> PoseErrors:
+    """Absolute translation and rotation error of each matched pose under ``result``'s alignment
+    (the same association as :func:`evaluate`)."""
+    i_est, i_gt = associate(est.timestamps, gt.timestamps, result.max_dt)
+    S = np.asarray(result.T_gt_est)
+    R_align = S[:3, :3] / result.scale
+    G, E = gt.poses[i_gt], est.poses[i_est]
+    est_xyz = E[:, :3, 3] @ S[:3, :3].T + S[:3, 3]
+    rot = np.degrees(_rot_angle(np.swapaxes(G[:, :3, :3], -1, -2) @ (R_align @ E[:, :3, :3])))
+    return PoseErrors(est.timestamps[i_est], G[:, :3, 3], est_xyz,
+                      np.linalg.norm(G[:, :3, 3] - est_xyz, axis=1), rot)

@@ -473,7 +473,7 @@ def _find_mav0(folder: Path) -> Optional[Path]:
 
 
 def open_sequence(path: Union[str, os.PathLike, int], calib=None, *, fps: Optional[float] = None,
-                  depth_max_dt: float = DEFAULT_DEPTH_MAX_DT) -> Sequence:
+                  depth_max_dt: float = DEFAULT_DEPTH_MAX_DT, topic: Optional[str] = None) -> Sequence:
     """Open a sequence.
 
     ``path``: a TUM RGB-D layout folder (``rgb.txt``), an EuRoC folder (with ``mav0/``, or
@@ -483,6 +483,8 @@ def open_sequence(path: Union[str, os.PathLike, int], calib=None, *, fps: Option
     ``calib``: path of a ``calib.txt`` (or a :class:`Camera`) overriding the sequence's own.
     ``fps``: frame rate for image folders without ``times.txt`` and to override a video's rate.
     ``depth_max_dt``: TUM rgb/depth association tolerance in seconds.
+    ``path`` may also be a ROS 1 ``.bag`` or a ROS 2 bag folder (``metadata.yaml``), read by
+    :func:`lite_vo.io.rosbag.open_rosbag`; ``topic``: its image topic (needed when it has several).
     """
     if isinstance(path, (int, np.integer)) or (isinstance(path, str) and path.isdigit() and not Path(path).exists()):
         index = int(path)
@@ -492,6 +494,11 @@ def open_sequence(path: Union[str, os.PathLike, int], calib=None, *, fps: Option
     p = Path(path).expanduser()
     if not p.exists():
         raise InputError(f"{p}: no such file or directory")
+    from .rosbag import is_rosbag, open_rosbag
+    if is_rosbag(p):
+        return open_rosbag(p, calib, topic=topic)
+    if topic is not None:
+        raise InputError(f"{p}: topic= applies to ROS bags only")
     if p.is_file():
         if p.suffix.lower() in VIDEO_EXTENSIONS:
             if calib is None:
