@@ -137,7 +137,8 @@ class Interrupted(BaseException):
 class Session:
     """Drives one run: ``Session(source, config, sinks=[...]).run() -> SessionResult``.
 
-    ``source``: a sequence path, camera index, or an opened sequence. ``pose_source="gt"`` takes
+    ``source``: a sequence path, camera index, or an opened sequence (``calib``: a calibration file
+    overriding the source's own; ``topic``: the image topic of a ROS bag). ``pose_source="gt"`` takes
     the poses from the sequence's ground truth (mapping only); ``depth_source="images"`` tracks
     every frame against the previous depth image (tracking only). Unreadable frames are skipped
     with a warning; more than ``max_bad_frames`` in a row end the run with an error.
@@ -146,7 +147,7 @@ class Session:
     def __init__(self, source, config: VOConfig, sinks: Iterable[OutputSink] = (), *,
                  depth_source: str = "filter", pose_source: str = "estimate", start_frame: int = 0,
                  max_frames: int | None = None, max_bad_frames: int = 10, profile_name: str | None = None,
-                 calib=None) -> None:
+                 calib=None, topic: str | None = None) -> None:
         if pose_source not in ("estimate", "gt"):
             raise InputError(f"pose source must be 'estimate' or 'gt', not {pose_source!r}")
         if start_frame < 0:
@@ -157,7 +158,7 @@ class Session:
             raise InputError(f"--max-bad-frames must be >= 0, got {max_bad_frames}")
         seq = source
         if isinstance(source, (str, Path, int)):
-            seq = open_sequence(source) if calib is None else open_sequence(source, calib=calib)
+            seq = open_sequence(source, calib=calib, topic=topic)
         self.sequence = seq
         self.config = config
         self.sinks = list(sinks)

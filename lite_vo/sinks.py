@@ -6,6 +6,8 @@
 * :class:`RunInfoSink`: ``run.json`` (written at the start with status ``running``, again at the end
   with the final status), ``timing.json``, and the depth accuracy files when the sequence has depth;
 * :class:`MapSink`: ``map.ply``, the semi-dense points of the last published map;
+* :class:`TrajectoryExportSink`: at the end, the trajectory in KITTI format and/or as a picture
+  (against the ground truth when there is one);
 * :class:`ProgressSink`: a progress bar on a terminal (tqdm), a plain line every few seconds when
   the output is piped.
 
@@ -25,6 +27,7 @@ import numpy as np
 
 from .geometry import tum_from_pose
 from .io import Trajectory, write_file_atomic, write_ply, write_trajectory
+from .io.trajectory import write_trajectory_kitti
 from .session import FrameEvent, OutputSink, PublishedMap, RunEnd, SessionInfo
 
 log = logging.getLogger(__name__)
@@ -217,6 +220,34 @@ class MapSink(OutputSink):
         else:
             pts, var, _ = self.last.points_world()
         write_ply(self.path, pts, idepth_var=var)
+
+
+class TrajectoryExportSink(OutputSink):
+    """At the end of a run: ``trajectory_kitti.txt`` (+ ``times.txt``) and/or ``trajectory.png``
+    from the poses of a :class:`TrajectorySink`. A picture that cannot be drawn (too few poses, no
+    matplotlib) is a warning, never a failed run."""
+
+    def __init__(self, trajectory: TrajectorySink, kitti_path=None, plot_path=None, groundtruth=None) -> None:
+        self.source = trajectory
+        self.kitti_path = Path(kitti_path) if kitti_path else None
+        self.plot_path = Path(plot_path) if plot_path else None
+        self.groundtruth = groundtruth
+        self._name = ""
+
+    def on_start(self, info: SessionInfo) -> None:
+        self._name = info.name
+
+    def on_finish(self, end: RunEnd) -> None:
+        from .errors import LiteVOError
+        traj = self.source.trajectory()
+        if self.kitti_path is not None:
+            write_trajectory_kitti(self.kitti_path, traj)
+        if self.plot_path is not None:
+            from .plots import plot_trajectory
+            try:
+                plot_trajectory(self.groundtruth, traj, self.plot_path, name=self._name)
+            except LiteVOError as err:
+                log.warning("no trajectory picture: %s", err)
 
 
 class ProgressSink(OutputSink):

@@ -36,6 +36,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--trajectory", type=Path, default=None, help="also write the camera trajectory (TUM format)")
     p.add_argument("--calib", type=Path, default=None,
                    help="calibration file for the source (calib.txt, OpenCV YAML, Kalibr or ROS camera_info YAML)")
+    p.add_argument("--topic", default=None, help="image topic of a ROS bag (needed when it has several)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     return p
@@ -77,7 +78,7 @@ def run(args) -> int:
     summary = ar_run.run_ar(args.sequence, out, profile=args.profile, poses=args.poses,
                             max_frames=args.max_frames, cfg=cfg, panels=args.panels or None,
                             overrides=args.overrides, trajectory_out=args.trajectory, mesh_out=args.mesh,
-                            quiet=args.quiet, vo_mode=args.mode, calib=args.calib)
+                            quiet=args.quiet, vo_mode=args.mode, calib=args.calib, topic=args.topic)
     t = summary["timing_ms"]
     if not summary["frames_written"]:
         raise InputError(f"{args.sequence}: no frames were processed, no video written")
