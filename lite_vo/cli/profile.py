@@ -1,11 +1,10 @@
 """``lite-vo profile``: run profiles on sequences and write the accuracy/timing report
-(parser + run; the work is in :mod:`lite_vo.profiler` and :mod:`lite_vo.profiler_report`)."""
+(parser + run; the work is in :mod:`lite_vo.profiling`)."""
 from __future__ import annotations
 
 import argparse
 
-# Kept equal to lite_vo.profiler.PAPER_PROFILES (not imported: parsers stay free of numpy).
-PAPER_PROFILES = ("desktop", "m640_t320", "m320_t320", "phone", "m160_t160", "m160_t80")
+from ..profiling.profiles import PAPER_PROFILES  # standard library only: the parser stays free of numpy
 
 _DESCRIPTION = """\
 Run each profile on each sequence (one `lite-vo run --mode sync` process per run, several in
@@ -68,7 +67,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..errors import InputError
-    from ..profiler import ProfileSettings, parse_profiles, run_profile
+    from ..profiling import ProfileSettings, parse_profiles, run_profile
 
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers must be at least 1")

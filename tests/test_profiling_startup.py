@@ -1,0 +1,79 @@
+"""Tests of lite_vo.profiling.startup (cold vs warm start-up, the warm-up before a sweep) and of
+lite_vo.warmup, which both rely on."""
+from __future__ import annotations
+
+from lite_vo.profiling import startup as St
+from lite_vo.warmup import warmup
+
+
+def test_warmup_reports_each_module_and_skips_missing_ones(tmp_path, monkeypatch):
+    pkg = tmp_path / "wpkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "good.py").write_text("CALLS = []\ndef warmup():\n    CALLS.append(1)\n")
+    (pkg / "bad.py").write_text("def warmup():\n    raise ValueError('kernel broke')\n")
+    (pkg / "plain.py").write_text("X = 1\n")
+    (pkg / "needs.py").write_text("import not_installed_dep_xyz\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    seen = []
+    res = warmup(["wpkg.good", "wpkg.bad", "wpkg.plain", "wpkg.nothere", "nopkg_xyz.k", "wpkg.needs"],
+                 on_result=seen.append)
+    status = {r.module: r.status for r in res}
+    assert status == {"wpkg.good": "ok", "wpkg.bad": "error", "wpkg.plain": "no_warmup",
+                      "wpkg.nothere": "missing", "nopkg_xyz.k": "missing", "wpkg.needs": "error"}
+    assert len(seen) == 6
+    import wpkg.good
+    assert wpkg.good.CALLS == [1]
+    assert "kernel broke" in res[1].message
+    assert "not_installed_dep_xyz" in res[5].message
+
+
+def test_warmup_cli_prints_each_module_and_fails_on_errors(tmp_path, monkeypatch, capsys):
+    import lite_vo.warmup as W
+    from lite_vo.cli.main import main
+    assert {"lite_vo.image", "lite_vo.tracking._kernels", "lite_vo.mapping._kernels",
+            "lite_vo.synth._kernels", "ar_demo._kernels"} <= set(W.KERNEL_MODULES)
+    pkg = tmp_path / "wpkg2"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "good.py").write_text("def warmup():\n    pass\n")
+    (pkg / "bad.py").write_text("def warmup():\n    raise ValueError('kernel broke')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(W, "KERNEL_MODULES", ("wpkg2.good", "wpkg2.absent"))
+    assert main(["warmup"]) == 0
+    out = capsys.readouterr().out
+    assert "wpkg2.good" in out and "wpkg2.absent" in out and "skipped" in out
+    assert main(["warmup", "--quiet"]) == 0
+    assert capsys.readouterr().out == ""
+    monkeypatch.setattr(W, "KERNEL_MODULES", ("wpkg2.good", "wpkg2.bad"))
+    assert main(["warmup", "--quiet"]) == 1
+    assert "kernel broke" in capsys.readouterr().err
+
+
+def test_compiled_kernels_from_numba_debug_output():
+    text = ("[cache] index saved to '/tmp/c/tracking_9eea/_kernels.accumulate-89.py311.nbi'\n"
+            "[cache] data saved to '/tmp/c/tracking_9eea/_kernels.accumulate-89.py311.2.nbc'\n"
+            "[cache] data loaded from '/tmp/c/mapping_12ab/_kernels.observe-10.py311.1.nbc'\n"
+            "[cache] data saved to '/tmp/c/tracking_9eea/_kernels.lm_level-307.py311.2.nbc'\n"
+            "[cache] data saved to '/tmp/c/lite_vo_77aa/image._blur_separable-151.py311.1.nbc'\n")
+    assert St.compiled_kernels(text) == ["lite_vo/image._blur_separable", "tracking/_kernels.accumulate",
+                                        "tracking/_kernels.lm_level"]
+    assert St.compiled_kernels("") == []
+
+
+def test_probe_frame_loop_times_exactly_the_first_frames_with_their_depth():
+    class Frame:
+        def __init__(self, i):
+            self.image, self.timestamp, self.depth = f"img{i}", 0.1 * i, f"depth{i}"
+
+    class VO:
+        calls = []
+
+        def process(self, image, timestamp, depth=None):
+            self.calls.append((image, timestamp, depth))
+
+    vo = VO()
+    ms = St.first_frames_ms(vo, (Frame(i) for i in range(10)), 3)
+    assert len(ms) == 3 and all(m >= 0.0 for m in ms)
+    assert vo.calls == [("img0", 0.0, "depth0"), ("img1", 0.1, "depth1"), ("img2", 0.2, "depth2")]
+    assert len(St.first_frames_ms(VO(), iter([Frame(0)]), 3)) == 1  # a short sequence gives what it has
