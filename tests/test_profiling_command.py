@@ -168,6 +168,21 @@ def test_cli_passes_its_options_to_the_profiler(tmp_path, monkeypatch, capsys):
     assert "nosuch" in capsys.readouterr().err
 
 
+def test_every_run_says_when_it_starts_and_ends(tmp_path):
+    seq = make_sequence(tmp_path / "data")
+    msgs: list[str] = []
+    s = settings(tmp_path, [seq], profiles=["phone", "desktop"], repeat=2, workers=1)
+    C.run_profile(s, launcher=FakeLauncher({"desktop": "crash"}), evaluator=FakeEvaluator(), log=msgs.append)
+    keys = [f"seqA/{p}/{k}" for k in (0, 1) for p in ("phone", "desktop")]
+    starts = [m for m in msgs if m.startswith("started ")]
+    ends = [m for m in msgs if m.startswith("[")]
+    assert [m.split()[1] for m in starts] == keys and [f"({i}/4)" for i in range(1, 5)] == [m.split()[2] for m in starts]
+    assert [m.split()[1].rstrip(":") for m in ends] == keys
+    assert "seqA/desktop/0: exit 1" in ends[1] and "seqA/phone/0: ok" in ends[0]
+    # one line per step, in order: the sweep announces its runs before the first starts
+    assert msgs.index(starts[0]) > next(i for i, m in enumerate(msgs) if m.startswith("4 runs"))
+
+
 def test_cli_progress_goes_to_stderr_and_quiet_keeps_only_warnings(tmp_path, monkeypatch, capsys):
     from lite_vo.cli.main import main
 

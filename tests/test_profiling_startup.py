@@ -2,6 +2,8 @@
 lite_vo.warmup, which both rely on."""
 from __future__ import annotations
 
+import subprocess
+
 from lite_vo.profiling import startup as St
 from lite_vo.warmup import warmup
 
@@ -77,3 +79,34 @@ def test_probe_frame_loop_times_exactly_the_first_frames_with_their_depth():
     assert len(ms) == 3 and all(m >= 0.0 for m in ms)
     assert vo.calls == [("img0", 0.0, "depth0"), ("img1", 0.1, "depth1"), ("img2", 0.2, "depth2")]
     assert len(St.first_frames_ms(VO(), iter([Frame(0)]), 3)) == 1  # a short sequence gives what it has
+
+
+def test_warm_up_says_what_it_does_before_and_after(monkeypatch):
+    results = iter([subprocess.CompletedProcess([], 0, "", ""),
+                    subprocess.CompletedProcess([], 1, "", "x\nValueError: x\n")])
+    seen = []
+    monkeypatch.setattr(St.subprocess, "run", lambda cmd, **kw: seen.append(cmd) or next(results))
+    msgs: list[str] = []
+    assert St.run_warmup(log=msgs.append)["ok"]
+    assert seen[0][1:] == ["-m", "lite_vo.cli.main", "warmup", "--quiet"]
+    assert msgs[0] == "warming up numba kernels (lite-vo warmup) ..." and msgs[1].startswith("warm-up done in ")
+    res = St.run_warmup(log=msgs.append)
+    assert not res["ok"] and res["error"] == "ValueError: x" and "warm-up failed after" in msgs[-1]
+
+
+def test_start_up_measurement_says_what_each_process_does(monkeypatch):
+    calls = []
+
+    def fake_python_json(code, args, env, timeout):
+        calls.append((code, env.get("NUMBA_CACHE_DIR"), env.get("NUMBA_DEBUG_CACHE")))
+        return {"ok": len(calls) != 2, "process_s": 10.0 * len(calls), "error": "broken warm-up"}
+
+    monkeypatch.setattr(St, "python_json", fake_python_json)
+    msgs: list[str] = []
+    res = St.measure_startup("seq", "phone", 2, log=msgs.append)
+    assert [m.split(":")[0] for m in msgs] == ["start-up 1/3"] * 2 + ["start-up 2/3"] * 2 + ["start-up 3/3"] * 2
+    assert msgs[0].endswith("...") and msgs[1].endswith("10.0 s") and msgs[3].endswith("failed: broken warm-up")
+    assert res["cold"]["process_s"] == 10.0 and res["warm"]["process_s"] == 30.0
+    # cold and warm probes use different, fresh caches; only the warm one lists compiled kernels
+    assert calls[0][0] == calls[2][0] == St.PROBE_CODE and calls[1][0] == St.WARMUP_CODE
+    assert calls[0][1] != calls[2][1] == calls[1][1] and calls[2][2] == "1" and calls[0][2] is None

@@ -58,12 +58,14 @@ def test_execute_keeps_order_never_shares_a_core_and_survives_a_broken_launcher(
             raise RuntimeError("launcher broke")
         return fake(spec, core)
 
-    done = []
-    outs = S.execute(specs, launcher, workers=3, pin_core=True, on_done=lambda i, n, s, o: done.append(i))
+    started, done = [], []
+    outs = S.execute(specs, launcher, workers=3, pin_core=True,
+                     on_start=lambda i, n, s, c: started.append((i, c)), on_done=lambda i, n, s, o: done.append(i))
     assert [o.returncode for o in outs] == [0, 0, 0, -1, 0, 0]
     assert "launcher broke" in outs[3].stderr_tail
     assert not fake.core_clash and {c for _, c in fake.calls} <= {0, 1}
-    assert sorted(done) == list(range(1, 7))
+    assert sorted(done) == list(range(1, 7)) and sorted(i for i, _ in started) == list(range(1, 7))
+    assert {c for _, c in started} <= {0, 1}  # a run is announced with the core it holds
 
 
 def test_launch_run_reports_a_crash_with_its_last_stderr_line(tmp_path, monkeypatch):

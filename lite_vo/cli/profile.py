@@ -58,7 +58,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-startup", action="store_true", help="skip the cold vs warm start-up measurement")
     p.add_argument("--no-plots", action="store_true", help="write no PNG plots (no matplotlib needed)")
     p.add_argument("--force", action="store_true", help="overwrite the report and runs in an existing --out folder")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress lines on stderr (warm-up, each run, the start-up probe); warnings still show")
     return p
 
 

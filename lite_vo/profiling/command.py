@@ -2,6 +2,9 @@
 the initialisation study), evaluates and aggregates the runs, measures the start-up and writes the
 report. ``lite_vo/cli/profile.py`` parses the options into :class:`ProfileSettings` and calls it.
 
+Progress goes to ``log`` (one plain line per step: the warm-up, every run as it starts and ends,
+each start-up process), so a sweep piped to a file still says what it is doing.
+
 Imports: the standard library and the other modules of ``lite_vo.profiling``; ``lite_vo.io``
 lazily. Never imports matplotlib (see :mod:`lite_vo.profiling.plots`), numba kernels,
 ``ar_demo`` or any GL/physics package.
@@ -111,12 +114,15 @@ class Sweep:
     log: Log
 
     def run(self, specs: list[RunSpec]) -> list[RunOutcome]:
-        """:func:`execute` the specs with a progress line when each run ends."""
+        """:func:`execute` the specs with a progress line when each run starts and when it ends."""
+        def started(k: int, n: int, spec: RunSpec, core: int | None) -> None:
+            self.log(f"started {spec.key} ({k}/{n}" + (f", core {core}" if core is not None else "") + ")")
+
         def done(k: int, n: int, spec: RunSpec, o: RunOutcome) -> None:
             state = "ok" if o.returncode == 0 else f"exit {o.returncode}"
             self.log(f"[{k}/{n}] {spec.key}: {state} ({o.wall_s:.1f} s)")
 
-        return execute(specs, self.launcher, self.workers, self.settings.pin_core, on_done=done)
+        return execute(specs, self.launcher, self.workers, self.settings.pin_core, on_start=started, on_done=done)
 
     def collect(self, spec: RunSpec, outcome: RunOutcome, max_lost_ratio: float) -> dict:
         """:func:`collect_run` against the sequence's ground truth."""
@@ -153,7 +159,7 @@ def startup_report(s: ProfileSettings, startup_fn: Callable[..., dict] | None, l
     """The cold vs warm start-up measurement (an error entry instead of an exception)."""
     log("measuring cold vs warm start-up (fresh processes, empty numba caches) ...")
     try:
-        return (startup_fn or measure_startup)(s.sequences[0], s.profiles[0])
+        return (startup_fn or measure_startup)(s.sequences[0], s.profiles[0], log=log)
     except Exception as err:  # noqa: BLE001 - the sweep results matter more
         return {"error": f"{type(err).__name__}: {err}"}
 
@@ -185,8 +191,7 @@ def run_profile(settings: ProfileSettings, launcher: RunLauncher | None = None, 
     sweep = Sweep(s, out, seq_names, gts, int(s.workers or default_workers()), launcher, evaluator, log)
     report["workers"] = sweep.workers
     if s.warmup and launcher is None:
-        log("warming up numba kernels (lite-vo warmup) ...")
-        report["warmup"] = run_warmup()
+        report["warmup"] = run_warmup(log=log)
     if s.init_study > 0:
         report.update(sweep.init_study())
     else:

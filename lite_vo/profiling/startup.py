@@ -19,7 +19,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 from .sweep import last_line
 
@@ -93,14 +93,25 @@ def python_json(code: str, args: Sequence[str], env: dict, timeout: float) -> di
             "error": last_line(proc.stderr) or f"exit status {proc.returncode}"}
 
 
-def measure_startup(sequence: str, profile: str = "phone", n_frames: int = 3, timeout: float = 900.0) -> dict:
+def _timed_step(log: Callable[[str], None], step: str, what: str, fn: Callable[[], dict]) -> dict:
+    """Say what a long step does, run it, say how long it took."""
+    log(f"start-up {step}: {what} ...")
+    res = fn()
+    state = f"{res['process_s']:.1f} s" if res.get("ok") else f"failed: {res.get('error')}"
+    log(f"start-up {step}: {state}")
+    return res
+
+
+def measure_startup(sequence: str, profile: str = "phone", n_frames: int = 3, timeout: float = 900.0,
+                    log: Callable[[str], None] | None = None) -> dict:
     """Time of the first frames in a fresh process, cold (empty numba cache) vs after a warm-up.
 
     Three subprocesses, each with its own ``NUMBA_CACHE_DIR``: (1) ``cold``: a probe with an
     empty cache (every kernel compiles on first use); (2) ``lite_vo.warmup.warmup()`` into a
     second empty cache; (3) ``warm``: the same probe with that warmed cache. The user's own
-    cache is never touched.
+    cache is never touched. ``log`` gets a line before and after each step.
     """
+    log = log or (lambda msg: None)
     out: dict[str, Any] = {"sequence": str(sequence), "profile": profile, "n_frames": n_frames}
     args = [str(sequence), str(profile), str(n_frames)]
     with tempfile.TemporaryDirectory(prefix="lite_vo_cold_") as cold_dir, \
@@ -108,22 +119,32 @@ def measure_startup(sequence: str, profile: str = "phone", n_frames: int = 3, ti
         env_cold = dict(os.environ, NUMBA_CACHE_DIR=cold_dir)
         env_warm = dict(os.environ, NUMBA_CACHE_DIR=warm_dir)
         try:
-            out["cold"] = python_json(PROBE_CODE, args, env_cold, timeout)
-            out["warmup"] = python_json(WARMUP_CODE, [], env_warm, timeout)
+            out["cold"] = _timed_step(log, "1/3", f"first {n_frames} frames with an empty numba cache "
+                                      "(compiles every kernel)", lambda: python_json(PROBE_CODE, args, env_cold, timeout))
+            out["warmup"] = _timed_step(log, "2/3", "lite-vo warmup into a second empty cache",
+                                        lambda: python_json(WARMUP_CODE, [], env_warm, timeout))
             # NUMBA_DEBUG_CACHE lists what still had to be compiled although warmup() ran
-            out["warm"] = python_json(PROBE_CODE, args, dict(env_warm, NUMBA_DEBUG_CACHE="1"), timeout)
+            out["warm"] = _timed_step(log, "3/3", f"first {n_frames} frames with the warmed cache",
+                                      lambda: python_json(PROBE_CODE, args, dict(env_warm, NUMBA_DEBUG_CACHE="1"),
+                                                          timeout))
         except subprocess.TimeoutExpired as err:
             out["error"] = f"timed out after {err.timeout:.0f} s"
     return out
 
 
-def run_warmup(timeout: float = 1800.0) -> dict:
-    """``lite-vo warmup --quiet`` in a child process (so sweep runs do not all compile at once)."""
+def run_warmup(timeout: float = 1800.0, log: Callable[[str], None] | None = None) -> dict:
+    """``lite-vo warmup --quiet`` in a child process (so sweep runs do not all compile at once);
+    ``log`` gets a line before and after."""
+    log = log or (lambda msg: None)
+    log("warming up numba kernels (lite-vo warmup) ...")
     t0 = time.perf_counter()
     try:
         proc = subprocess.run([sys.executable, "-m", "lite_vo.cli.main", "warmup", "--quiet"],
                               capture_output=True, text=True, timeout=timeout)
+        res = {"ok": proc.returncode == 0, "seconds": time.perf_counter() - t0,
+               "error": last_line(proc.stderr) if proc.returncode else ""}
     except subprocess.TimeoutExpired:
-        return {"ok": False, "seconds": time.perf_counter() - t0, "error": "timed out"}
-    return {"ok": proc.returncode == 0, "seconds": time.perf_counter() - t0,
-            "error": last_line(proc.stderr) if proc.returncode else ""}
+        res = {"ok": False, "seconds": time.perf_counter() - t0, "error": "timed out"}
+    log(f"warm-up done in {res['seconds']:.1f} s" if res["ok"]
+        else f"warm-up failed after {res['seconds']:.1f} s: {res['error']} (each run compiles what it needs)")
+    return res

@@ -62,7 +62,9 @@ class RunOutcome:
 #: Starts the run of a spec (on the given core, or anywhere for None) and waits for it.
 RunLauncher = Callable[[RunSpec, "int | None"], RunOutcome]
 
-#: Progress callback of :func:`execute`: ``(k, n, spec, outcome)`` when the k-th run of n finishes.
+#: Progress callbacks of :func:`execute`: ``(k, n, spec, core)`` when the k-th run of n starts,
+#: ``(k, n, spec, outcome)`` when the k-th run finishes.
+OnStart = Callable[[int, int, RunSpec, "int | None"], None]
 OnDone = Callable[[int, int, RunSpec, RunOutcome], None]
 
 
@@ -177,13 +179,14 @@ def launch_safely(launcher: RunLauncher, spec: RunSpec, core: int | None) -> Run
 
 
 def execute(specs: Sequence[RunSpec], launcher: RunLauncher | None = None, workers: int | None = None,
-            pin_core: bool = False, on_done: OnDone | None = None) -> list[RunOutcome]:
+            pin_core: bool = False, on_start: OnStart | None = None,
+            on_done: OnDone | None = None) -> list[RunOutcome]:
     """Run every spec with ``workers`` parallel launchers; returns outcomes in the order of ``specs``.
 
     With ``pin_core`` each running job holds one core of this process's affinity mask for its
     whole duration (so parallel runs never share a core; at most one job per core). A launcher
-    that raises is turned into a crash outcome; nothing stops the sweep. ``on_done`` is called
-    (one at a time) as runs finish.
+    that raises is turned into a crash outcome; nothing stops the sweep. ``on_start`` and
+    ``on_done`` are called (one at a time) as runs start and finish.
     """
     launcher = launcher or launch_run
     workers = max(1, int(workers or default_workers()))
@@ -194,20 +197,24 @@ def execute(specs: Sequence[RunSpec], launcher: RunLauncher | None = None, worke
             cores.put(c)
     n = len(specs)
     outcomes: list[RunOutcome] = [RunOutcome(-1)] * n
-    done = [0]
+    counts = {"started": 0, "done": 0}
     lock = threading.Lock()
 
     def job(i: int) -> None:
         core = cores.get() if cores is not None else None
         try:
+            with lock:
+                counts["started"] += 1
+                if on_start is not None:
+                    on_start(counts["started"], n, specs[i], core)
             outcomes[i] = launch_safely(launcher, specs[i], core)
         finally:
             if cores is not None:
                 cores.put(core)
         with lock:
-            done[0] += 1
+            counts["done"] += 1
             if on_done is not None:
-                on_done(done[0], n, specs[i], outcomes[i])
+                on_done(counts["done"], n, specs[i], outcomes[i])
 
     if workers == 1:
         for i in range(n):
