@@ -142,12 +142,13 @@ class Session:
     the poses from the sequence's ground truth (mapping only); ``depth_source="images"`` tracks
     every frame against the previous depth image (tracking only). Unreadable frames are skipped
     with a warning; more than ``max_bad_frames`` in a row end the run with an error.
+    ``warm_up_kernels=False`` leaves the numba compile (cold cache) in the first frames.
     """
 
     def __init__(self, source, config: VOConfig, sinks: Iterable[OutputSink] = (), *,
                  depth_source: str = "filter", pose_source: str = "estimate", start_frame: int = 0,
                  max_frames: int | None = None, max_bad_frames: int = 10, profile_name: str | None = None,
-                 calib=None, topic: str | None = None) -> None:
+                 calib=None, topic: str | None = None, warm_up_kernels: bool = True) -> None:
         if pose_source not in ("estimate", "gt"):
             raise InputError(f"pose source must be 'estimate' or 'gt', not {pose_source!r}")
         if start_frame < 0:
@@ -183,6 +184,7 @@ class Session:
             total = min(total, max_frames)
         self.frames_total = total
         self.profile_name = profile_name or config.name
+        self.warm_up_kernels = warm_up_kernels
         self._full_rectifier = None
 
     # ------------------------------------------------------------------ helpers
@@ -216,7 +218,8 @@ class Session:
         """Process every frame; sinks see everything. Re-raises Ctrl-C, SIGTERM and errors after
         ``on_finish`` was called with the matching status."""
         t_warm = time.perf_counter()
-        warmup(CORE_KERNEL_MODULES)        # compile/load kernels before the clock starts
+        if self.warm_up_kernels:           # compile/load kernels before the clock starts
+            warmup(CORE_KERNEL_MODULES)
         warmup_s = time.perf_counter() - t_warm
         seq, cfg = self.sequence, self.config
         vo = VisualOdometry(seq.camera, cfg, depth_source=self.depth_source,
