@@ -147,11 +147,18 @@ def _flat_numbers(source: str, key: str, value, counts: Sequence[int] | None = N
         v = [v]
     if isinstance(v, list) and v and all(isinstance(r, list) for r in v):
         v = [x for r in v for x in r]
-    if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+    if not isinstance(v, list):
         raise InputError(f"{source}: {key} must be a list of numbers")
-    if counts is not None and len(v) not in counts:
-        raise InputError(f"{source}: {key} must have {' or '.join(map(str, counts))} values, got {len(v)}")
-    out = [float(x) for x in v]
+    out = []
+    for n, x in enumerate(v, start=1):
+        try:                                 # YAML 1.1 reads 1e-05 (no dot) and nan as strings
+            if isinstance(x, bool):
+                raise ValueError
+            out.append(float(x))
+        except (TypeError, ValueError):
+            raise InputError(f"{source}: {key} value {n} ({x!r}) is not a number") from None
+    if counts is not None and len(out) not in counts:
+        raise InputError(f"{source}: {key} must have {' or '.join(map(str, counts))} values, got {len(out)}")
     bad = [i for i, x in enumerate(out) if not np.isfinite(x)]
     if bad:
         raise InputError(f"{source}: {key} value {bad[0] + 1} is {out[bad[0]]} (must be a finite number)")
