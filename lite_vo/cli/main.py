@@ -13,7 +13,7 @@ import sys
 
 from ..errors import LiteVOError
 
-COMMANDS = ("run", "eval", "synth", "profile", "warmup", "ar", "demo")
+COMMANDS = ("run", "eval", "synth", "profile", "warmup", "ar", "demo", "calibrate")
 
 
 def build_parser() -> argparse.ArgumentParser:
