@@ -40,9 +40,23 @@ DEFAULT_FPS = 30.0
 # image loading
 # ------------------------------------------------------------------------------------------------
 
+#: a BGR image whose channels differ by at most this everywhere is grey (a grey video decoded
+#: as BGR; lossy codecs' chroma rounding leaves a few levels)
+GREY_TOLERANCE = 3
+
+
+def _is_grey(img: np.ndarray) -> bool:
+    import cv2
+    for a in (img[::7, ::5], img):           # a strided sample decides quickly for colour images
+        b, g, r = cv2.split(np.ascontiguousarray(a))
+        if max(cv2.absdiff(b, g).max(), cv2.absdiff(b, r).max()) > GREY_TOLERANCE:
+            return False
+    return True
+
+
 def _grey_and_colour(img: np.ndarray) -> tuple[np.ndarray, Optional[np.ndarray]]:
-    """(grey uint8, BGR uint8 or None) of a decoded 8-bit image. Three equal channels (a grey
-    video decoded as BGR) count as grey; a strided sample decides quickly for colour images."""
+    """(grey uint8, BGR uint8 or None) of a decoded 8-bit image; BGR images whose channels are
+    (nearly) equal count as grey."""
     import cv2
     if img.ndim == 2:
         return img, None
@@ -53,11 +67,7 @@ def _grey_and_colour(img: np.ndarray) -> tuple[np.ndarray, Optional[np.ndarray]]
     elif img.shape[2] != 3:
         return np.ascontiguousarray(img[..., 0]), None
     grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-    sample = img[::7, ::5]
-    if (np.array_equal(sample[..., 0], sample[..., 1]) and np.array_equal(sample[..., 0], sample[..., 2])
-            and np.array_equal(img[..., 0], img[..., 1]) and np.array_equal(img[..., 0], img[..., 2])):
-        return grey, None
-    return grey, img
+    return grey, (None if _is_grey(img) else img)
 
 
 def _imread(path: Path) -> tuple[np.ndarray, Optional[np.ndarray]]:
