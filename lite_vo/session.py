@@ -31,7 +31,7 @@ import numpy as np
 
 from .camera import PinholeIntrinsics
 from .config import VOConfig
-from .errors import InputError, LiteVOError
+from .errors import InputError, Interrupted, LiteVOError
 from .io import open_sequence
 from .system import FrameResult, PublishedMap, VisualOdometry
 from .warmup import CORE_KERNEL_MODULES, warmup
@@ -120,14 +120,6 @@ class SessionResult:
     @property
     def status(self) -> str:
         return self.end.status
-
-
-class Interrupted(BaseException):
-    """Raised in the main thread by the SIGTERM handler the CLI installs (SIGINT is KeyboardInterrupt)."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(f"signal {signum}")
-        self.signum = signum
 
 
 # ----------------------------------------------------------------------------------------------

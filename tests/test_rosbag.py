@@ -179,8 +179,8 @@ def test_camera_info_conversion_errors(tmp_path):
             w.write_message("/cam/camera_info", info, 10 ** 9)
             w.image("/cam/image_raw", 1.0, _images(1)[0], "mono8")
         return path
-    with pytest.raises(InputError, match="equidistant"):
-        open_sequence(bag_with_info("fish.bag", "equidistant", [0.1, 0.01, 0.0, 0.0]))
+    fish = open_sequence(bag_with_info("fish.bag", "equidistant", [0.1, 0.01, 0.0, 0.0])).camera
+    assert fish.model == "equidistant" and fish.params == (0.1, 0.01, 0.0, 0.0)
     with pytest.raises(InputError, match="not calibrated"):
         open_sequence(bag_with_info("zero.bag", "plumb_bob", [0] * 5, K=[0] * 9))
     cam = open_sequence(bag_with_info("rp.bag", "rational_polynomial", [-0.1, 0.02, 0.001, 0, 0.003, 0, 0, 0])).camera

@@ -34,7 +34,8 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError, MissingExtraError
-from .sequences import Sequence
+from .base import Sequence
+from .calib_formats import camera_from_ros, load_calibration
 from .types import Accelerometer, Frame
 
 ROS_EXTRA_MESSAGE = "reading ROS bags needs the [ros] extra: pip install 'lite-vo[ros]'"
@@ -183,34 +184,6 @@ def _is_depth(msg, msgtype: str) -> bool:
     return msg.encoding in DEPTH_ENCODINGS
 
 
-def _camera_from_camera_info(width: int, height: int, distortion_model: str, K, D, source: str) -> Camera:
-    """A :class:`Camera` from the fields of a ``sensor_msgs/CameraInfo``.
-
-    plumb_bob (and an empty model or rational_polynomial whose k4..k6 are 0) -> radial-tangential.
-    ONE place on purpose: at the merge this becomes ``lite_vo.io.calib_formats.camera_from_ros``
-    (same arguments), which adds the equidistant (fisheye) model."""
-    K = np.asarray(K, dtype=np.float64).reshape(-1)
-    D = [float(v) for v in np.asarray(D, dtype=np.float64).reshape(-1)]
-    if len(K) != 9 or not np.all(np.isfinite(K)) or not (K[0] > 0 and K[4] > 0):
-        raise InputError(f"{source}: the camera is not calibrated (K = {K.tolist()}); pass a calibration file")
-    if width <= 0 or height <= 0:
-        raise InputError(f"{source}: image size {width}x{height} is not valid; pass a calibration file")
-    fx, cx, fy, cy = K[0], K[2], K[4], K[5]
-    model = (distortion_model or "").strip().lower()
-    if model == "equidistant":
-        raise InputError(f"{source}: equidistant (fisheye) lenses are not supported yet; pass a calibration file")
-    if model == "rational_polynomial" and len(D) == 8 and not any(D[5:]):
-        D = D[:5]
-    if model not in ("plumb_bob", "", "rational_polynomial") or len(D) not in (0, 4, 5):
-        raise InputError(f"{source}: distortion model {distortion_model!r} with {len(D)} coefficients is not "
-                         "supported (plumb_bob k1 k2 p1 p2 k3); pass a calibration file")
-    if not all(np.isfinite(D)):
-        raise InputError(f"{source}: distortion coefficients are not finite")
-    if not any(D):
-        return Camera.pinhole(fx, fy, cx, cy, width, height)
-    return Camera.radtan(fx, fy, cx, cy, width, height, *D)
-
-
 def _field(msg, *names):
     """The first of ``names`` the message has (ROS 1 CameraInfo fields are ``K``, ROS 2 ``k``)."""
     for n in names:
@@ -224,7 +197,7 @@ def _camera_from_info_message(msg, source: str) -> Camera:
     roi = getattr(msg, "roi", None)
     if bx > 1 or by > 1 or (roi is not None and int(roi.width) not in (0, int(msg.width))):
         raise InputError(f"{source}: binning / region of interest is not supported; pass a calibration file")
-    return _camera_from_camera_info(int(msg.width), int(msg.height), msg.distortion_model,
+    return camera_from_ros(int(msg.width), int(msg.height), msg.distortion_model,
                                     _field(msg, "k", "K"), _field(msg, "d", "D"), source)
 
 
@@ -340,7 +313,6 @@ def open_rosbag(path: Union[str, os.PathLike], calib=None, *, topic: Optional[st
     overriding the bag's CameraInfo; ``topic``: the image topic (needed when the bag has several);
     ``imu_topic``: the ``sensor_msgs/Imu`` topic (default: the only one, or the one in the
     camera's namespace)."""
-    from .sequences import _load_calibration
     path = Path(path).expanduser()
     if not path.exists():
         raise InputError(f"{path}: no such file or directory")
@@ -373,7 +345,7 @@ def open_rosbag(path: Union[str, os.PathLike], calib=None, *, topic: Optional[st
 
         info_topic = None
         if calib is not None:
-            camera = _load_calibration(calib).camera
+            camera = load_calibration(calib).camera
         else:
             infos = {t for t, typ in topics.items() if typ == CAMERA_INFO}
             info_topic = next((ns + "/camera_info" for ns in _namespaces(topic) if ns + "/camera_info" in infos), None)

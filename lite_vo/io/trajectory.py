@@ -151,15 +151,17 @@ def read_kitti_times(path: Path, count: int) -> np.ndarray:
     return arr[:, 0].copy()
 
 
-def read_euroc_groundtruth(path: str | os.PathLike, what: str = "ground truth file") -> tuple[Trajectory, str]:
+def read_euroc_groundtruth(path: str | os.PathLike, what: str = "ground truth file",
+                           T_body_cam: np.ndarray | None = None) -> tuple[Trajectory, str]:
     """(trajectory, note) of an EuRoC ``state_groundtruth_estimate0/data.csv`` (ns timestamps,
     ``p_RS_R_xyz``, ``q_RS_wxyz``, further columns ignored).
 
-    Inside a ``mav0`` folder (``../../cam0/sensor.yaml``) the poses are converted to cam0 as the
-    sequence reader does (``T_world_cam = T_world_S T_BS^-1 T_BC``); otherwise they stay the poses
-    of the ground-truth sensor (the body), which the note says."""
+    The poses are converted to the camera (``T_world_cam = T_world_S T_BS^-1 T_BC``) with
+    ``T_body_cam`` when given, else inside a ``mav0`` folder with ``../../cam0/sensor.yaml`` (as the
+    sequence reader does); otherwise they stay the poses of the ground-truth sensor (the body), which
+    the note says."""
     from ..geometry import make_pose, rotmat_from_quat_xyzw
-    from .calib import parse_simple_yaml, yaml_matrix4
+    from .calib_formats import read_sensor_transform
     path = Path(path)
     arr, numbers = parse_table(path, 8, None, sep=",", what=what,
                                layout="timestamp [ns], p_RS_R_x, p_RS_R_y, p_RS_R_z, q_RS_w, q_RS_x, q_RS_y, q_RS_z")
@@ -173,12 +175,12 @@ def read_euroc_groundtruth(path: str | os.PathLike, what: str = "ground truth fi
         raise InputError(f"{path} line {numbers[bad[0]]}: quaternion q_RS_w .. q_RS_z has zero length")
     T_world_S = make_pose(rotmat_from_quat_xyzw(q_wxyz[:, [1, 2, 3, 0]]), arr[:, 1:4])
     cam_yaml = path.parent.parent / "cam0" / "sensor.yaml"
-    if not cam_yaml.is_file():
+    if T_body_cam is None and not cam_yaml.is_file():
         return Trajectory(t, T_world_S), (f"{path}: EuRoC ground truth of the body (no cam0/sensor.yaml beside "
                                           "it: not converted to the camera)")
     gt_yaml = path.parent / "sensor.yaml"
-    T_BS = yaml_matrix4(gt_yaml, parse_simple_yaml(gt_yaml)) if gt_yaml.is_file() else np.eye(4)
-    T_BC = yaml_matrix4(cam_yaml, parse_simple_yaml(cam_yaml))
+    T_BS = read_sensor_transform(gt_yaml) if gt_yaml.is_file() else np.eye(4)
+    T_BC = read_sensor_transform(cam_yaml) if T_body_cam is None else np.asarray(T_body_cam, dtype=np.float64)
     return Trajectory(t, T_world_S @ np.linalg.inv(T_BS) @ T_BC), f"{path}: EuRoC ground truth, converted to cam0"
 
 
