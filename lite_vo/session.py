@@ -33,6 +33,7 @@ from .camera import PinholeIntrinsics
 from .config import VOConfig
 from .errors import InputError, Interrupted, LiteVOError
 from .io import open_sequence
+from .progress import announce_if_slow
 from .system import FrameResult, PublishedMap, VisualOdometry
 from .warmup import CORE_KERNEL_MODULES, warmup
 
@@ -211,7 +212,9 @@ class Session:
         ``on_finish`` was called with the matching status."""
         t_warm = time.perf_counter()
         if self.warm_up_kernels:           # compile/load kernels before the clock starts
-            warmup(CORE_KERNEL_MODULES)
+            with announce_if_slow("compiling the numba kernels (the first run on this machine takes about a "
+                                  "minute; `lite-vo warmup` does it once after installing) ..."):
+                warmup(CORE_KERNEL_MODULES)
         warmup_s = time.perf_counter() - t_warm
         seq, cfg = self.sequence, self.config
         vo = VisualOdometry(seq.camera, cfg, depth_source=self.depth_source,
