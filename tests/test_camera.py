@@ -128,8 +128,9 @@ def _pattern(x: np.ndarray, y: np.ndarray, period: float = 0.12) -> np.ndarray:
     return 127.5 + 110.0 * np.tanh(2.0 * np.sin(a * x) * np.sin(a * y))
 
 
-def _render_distorted(cam: Camera, supersample: int = 2) -> np.ndarray:
-    """Native image of the pattern seen through the distorted camera (pixel-area averaged)."""
+def _render_native(cam: Camera, intensity, supersample: int = 2) -> np.ndarray:
+    """Native image of ``intensity(x, y)`` (normalised undistorted coordinates) seen through the
+    distorted camera, pixel-area averaged over ``supersample`` x ``supersample`` samples."""
     s = supersample
     off = (np.arange(s) + 0.5) / s - 0.5
     acc = np.zeros((cam.height, cam.width))
@@ -137,8 +138,13 @@ def _render_distorted(cam: Camera, supersample: int = 2) -> np.ndarray:
     for du in off:
         for dv in off:
             xy = cam.unproject(np.stack([u + du, v + dv], -1))
-            acc += _pattern(xy[..., 0], xy[..., 1])
+            acc += intensity(xy[..., 0], xy[..., 1])
     return acc / (s * s)
+
+
+def _render_distorted(cam: Camera, supersample: int = 2) -> np.ndarray:
+    """Native image of the pattern seen through the distorted camera (pixel-area averaged)."""
+    return _render_native(cam, _pattern, supersample)
 
 
 def _render_pinhole(k: PinholeIntrinsics, period: float = 0.12) -> np.ndarray:
@@ -183,16 +189,11 @@ def _line_image(cam: Camera, line: tuple, width: float = 0.004, supersample: int
     """Native image of a dark straight 3D line on a bright background: the line projects to
     ``a x + b y + c = 0`` in undistorted normalised coordinates (a pinhole sees it straight)."""
     a, b, c = line
-    s = supersample
-    off = (np.arange(s) + 0.5) / s - 0.5
-    acc = np.zeros((cam.height, cam.width))
-    u, v = np.meshgrid(np.arange(cam.width, dtype=float), np.arange(cam.height, dtype=float))
-    for du in off:
-        for dv in off:
-            xy = cam.unproject(np.stack([u + du, v + dv], -1))
-            dist = np.abs(a * xy[..., 0] + b * xy[..., 1] + c) / np.hypot(a, b)
-            acc += 230.0 - 200.0 * np.exp(-0.5 * (dist / width) ** 2)
-    return np.clip(np.rint(acc / (s * s)), 0, 255).astype(np.uint8)
+
+    def intensity(x, y):
+        dist = np.abs(a * x + b * y + c) / np.hypot(a, b)
+        return 230.0 - 200.0 * np.exp(-0.5 * (dist / width) ** 2)
+    return np.clip(np.rint(_render_native(cam, intensity, supersample)), 0, 255).astype(np.uint8)
 
 
 def _line_centres(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
