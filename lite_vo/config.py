@@ -61,6 +61,9 @@ class SystemConfig:
     verify_max_rot_deg: float = param(2.0, "largest rotation difference between tracked and two-view pose that counts as agreement", 0.0, 180.0)
     verify_max_tdir_deg: float = param(30.0, "largest translation-direction difference that counts as agreement", 0.0, 180.0)
     verify_max_s: float = param(6.0, "give the check up (keep the random map) after this many seconds", 0.1, 600.0)
+    blur_window: int = param(15, "frames in the recent-sharpness median a frame's motion-blur score is relative to", 1, 1000)
+    blur_min_sharpness: float = param(0.6, "a frame whose sharpness is below this share of the recent median is tracked "
+                                      "only: never mapped, never a stereo reference (0 = off)", 0.0, 1.0)
     bootstrap_replay_every: int = param(1, "two-view bootstrap: replay the depth filter on every k-th stored frame", 1, 30)
 
 

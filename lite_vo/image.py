@@ -13,6 +13,7 @@ Owns:
 * :func:`bspline_coefficient_stack` - cubic B-spline coefficients ((H, W, 1)), for
   bicubic-spline sampling in tracking (much less "pixel locking" than bilinear interpolation).
 * :func:`gaussian_blur` - separable Gaussian (mirror borders), the tracking images' anti-aliasing.
+* :func:`sharpness` - mean squared gradient over the intensity variance (motion-blur score).
 * :func:`warmup` - compiles every kernel of this module on tiny inputs.
 
 Imports numpy and numba only (no other lite_vo module, no OpenCV).
@@ -23,7 +24,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["image_pyramid", "idepth_pyramid", "gradients", "intensity_gradient_stack", "bspline_coefficient_stack",
-           "downsample_image", "downsample_idepth", "gaussian_blur", "gaussian_kernel", "warmup"]
+           "downsample_image", "downsample_idepth", "gaussian_blur", "gaussian_kernel", "sharpness", "warmup"]
 
 
 # --------------------------------------------------------------------------- kernels
@@ -195,6 +196,29 @@ def _sanitize_idepth(d_in, v_in, m_in, d_out, v_out, m_out):
             v_out[y, x] = v if ok else nan
 
 
+@njit(cache=True, nogil=True, fastmath=False)
+def _gradient_energy(img):
+    """(mean squared half-central-difference gradient over the interior, intensity variance)."""
+    h, w = img.shape
+    s = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    n = 0
+    for y in range(1, h - 1):
+        for x in range(1, w - 1):
+            v = np.float64(img[y, x])
+            gx = 0.5 * (np.float64(img[y, x + 1]) - img[y, x - 1])
+            gy = 0.5 * (np.float64(img[y + 1, x]) - img[y - 1, x])
+            s += gx * gx + gy * gy
+            s1 += v
+            s2 += v * v
+            n += 1
+    if n == 0:
+        return np.nan, np.nan
+    m = s1 / n
+    return s / n, s2 / n - m * m
+
+
 # --------------------------------------------------------------------------- wrappers
 def _as_image(img, name="image") -> np.ndarray:
     a = np.asarray(img)
@@ -317,6 +341,14 @@ def gaussian_blur(img: np.ndarray, sigma: float, truncate: float = 2.5) -> np.nd
     return out
 
 
+def sharpness(img: np.ndarray) -> float:
+    """Mean squared gradient over the intensity variance (1/px^2): motion blur lowers the first and
+    hardly changes the second; both scale with the gain squared and ignore an offset, so an exposure
+    change does not look like blur. NaN for a flat or tiny image."""
+    g2, var = _gradient_energy(_as_image(img))
+    return float(g2 / var) if var > 1e-6 else float("nan")
+
+
 def warmup() -> None:
     """Compile (or load from the cache) every kernel of this module."""
     img = np.arange(16, dtype=np.float32).reshape(4, 4)
@@ -325,6 +357,7 @@ def warmup() -> None:
     intensity_gradient_stack(img)
     bspline_coefficient_stack(img)
     gaussian_blur(img, 0.7)
+    sharpness(img)
     img_ro = img.copy()
     img_ro.flags.writeable = False  # pyramids handed to a TrackingReference become read-only
     gaussian_blur(img_ro, 0.7)

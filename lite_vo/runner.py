@@ -33,7 +33,8 @@ class RunResult:
 def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, force: bool = False,
                  depth_source: str = "filter", pose_source: str = "estimate", max_frames: int | None = None,
                  start_frame: int = 0, quiet: bool = True, sinks=(), profile_name: str | None = None,
-                 max_bad_frames: int = 10, calib=None, kitti: bool = False, plot: bool = False) -> RunResult:
+                 max_bad_frames: int = 10, calib=None, kitti: bool = False, plot: bool = False,
+                 photometric=None) -> RunResult:
     """Run the visual odometry over ``sequence`` (a path, camera index or opened sequence).
 
     Writes the contract files into ``out_dir`` (when given) as the run goes; ``sinks`` are further
@@ -48,7 +49,7 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
         require_matplotlib()                  # before the run, not after it
     session = Session(sequence, config, depth_source=depth_source, pose_source=pose_source,
                       start_frame=start_frame, max_frames=max_frames, max_bad_frames=max_bad_frames,
-                      profile_name=profile_name, calib=calib)
+                      profile_name=profile_name, calib=calib, photometric=photometric)
     run_info = RunInfoSink(None)
     own = [run_info]
     if out_dir is not None:  # only once the input is known to be usable

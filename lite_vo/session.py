@@ -33,6 +33,7 @@ from .camera import PinholeIntrinsics
 from .config import VOConfig
 from .errors import InputError, Interrupted, LiteVOError
 from .io import open_sequence
+from .photometric import load_photometric
 from .progress import announce_if_slow
 from .system import FrameResult, PublishedMap, VisualOdometry
 from .warmup import CORE_KERNEL_MODULES, warmup
@@ -136,12 +137,14 @@ class Session:
     every frame against the previous depth image (tracking only). Unreadable frames are skipped
     with a warning; more than ``max_bad_frames`` in a row end the run with an error.
     ``warm_up_kernels=False`` leaves the numba compile (cold cache) in the first frames.
+    ``photometric``: a folder with DSO's ``pcalib.txt`` / ``vignette.png`` (else such files beside the
+    sequence's calibration are used when present).
     """
 
     def __init__(self, source, config: VOConfig, sinks: Iterable[OutputSink] = (), *,
                  depth_source: str = "filter", pose_source: str = "estimate", start_frame: int = 0,
                  max_frames: int | None = None, max_bad_frames: int = 10, profile_name: str | None = None,
-                 calib=None, topic: str | None = None, warm_up_kernels: bool = True) -> None:
+                 calib=None, topic: str | None = None, warm_up_kernels: bool = True, photometric=None) -> None:
         if pose_source not in ("estimate", "gt"):
             raise InputError(f"pose source must be 'estimate' or 'gt', not {pose_source!r}")
         if start_frame < 0:
@@ -178,6 +181,11 @@ class Session:
         self.frames_total = total
         self.profile_name = profile_name or config.name
         self.warm_up_kernels = warm_up_kernels
+        seq_dir = getattr(seq, "path", None)
+        seq_dir = Path(seq_dir) if seq_dir is not None and Path(seq_dir).is_dir() else None
+        self.photometric = load_photometric(photometric, seq_dir)   # DSO's pcalib/vignette/exposures
+        if self.photometric is not None:
+            log.info("photometric calibration from %s", photometric or seq_dir)
         self._full_rectifier = None
 
     # ------------------------------------------------------------------ helpers
@@ -218,7 +226,8 @@ class Session:
         warmup_s = time.perf_counter() - t_warm
         seq, cfg = self.sequence, self.config
         vo = VisualOdometry(seq.camera, cfg, depth_source=self.depth_source,
-                            pose_source="given" if self.pose_source == "gt" else "estimate")
+                            pose_source="given" if self.pose_source == "gt" else "estimate",
+                            photometric=self.photometric)
         want_image = any(getattr(s, "wants_image", False) for s in self.sinks)
         info = SessionInfo(
             name=seq.name, path=str(getattr(seq, "path", None) or seq.name), frames_total=self.frames_total,

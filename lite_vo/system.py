@@ -52,6 +52,7 @@ from .image import image_pyramid
 from .mapping import MapFrame, Mapper, depth_accuracy
 from .timing import Timers
 from .tracking import Tracker, TrackingReference, depth_image_idepth
+from .photometric import PhotometricCalibration, PhotometricMonitor
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +110,7 @@ class _Reference:
     """What tracking tracks against: an immutable reference and the map it was built from."""
     tracking_ref: Any
     map: PublishedMap
+    affine: tuple = (1.0, 0.0)   # brightness (A, B) of the reference frame: I = A * J + B
 
     @property
     def T_world_ref(self) -> np.ndarray:
@@ -126,6 +128,9 @@ class _Frame:
     T_world_cam: np.ndarray | None = None
     residual: float = 0.0
     mapper: Any = None                # the mapper whose map this frame was tracked against
+    sharpness: float = 1.0            # relative to the recent frames (motion blur: < 1)
+    affine: tuple = (1.0, 0.0)        # brightness (A, B): I = A * J + B, chained by tracking
+    noise_sigma: float = float("nan")  # smoothed image noise estimate (grey levels)
 
 
 class VisualOdometry:
@@ -143,12 +148,15 @@ class VisualOdometry:
         against the previous frame's depth image: RGB-D odometry, isolates tracking).
     pose_source:
         ``"estimate"`` (tracking) or ``"given"`` (poses passed to :meth:`process`: isolates mapping).
+    photometric:
+        a :class:`PhotometricCalibration` applied to every raw image first (None: none).
     """
 
     #: published maps kept for :meth:`take_published_maps` (older ones are dropped when nobody takes them)
     MAX_WAITING_MAPS = 16
 
-    def __init__(self, camera, config: VOConfig, depth_source: str = "filter", pose_source: str = "estimate") -> None:
+    def __init__(self, camera, config: VOConfig, depth_source: str = "filter", pose_source: str = "estimate",
+                 photometric: PhotometricCalibration | None = None) -> None:
         if depth_source not in ("filter", "images"):
             raise LiteVOError(f"depth_source must be 'filter' or 'images', not {depth_source!r}")
         if pose_source not in ("estimate", "given"):
@@ -171,6 +179,9 @@ class VisualOdometry:
         self._last_good_pose: np.ndarray | None = None
         self._velocity = np.eye(4)
         self._lost_count = 0
+        self._photometric = photometric
+        self._monitor = PhotometricMonitor(config.system.blur_window, config.tracking.noise_smoothing)
+        self._recent_affine: dict[int, tuple] = {}   # frame index -> brightness, for the bootstrap replay
         self._index = 0
         self._t0: float | None = None
         self._last_ts: float | None = None
@@ -299,13 +310,16 @@ class VisualOdometry:
         t = time.perf_counter()
         if image.ndim == 3:
             image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        if self._photometric is not None:
+            image = self._photometric.correct(image, self._photometric.exposure_at(timestamp))
         img = self._rectifier(image)
+        sharp = self._monitor.sharpness(img)
         pyr = image_pyramid(img, self.config.resolution.pyramid_levels)
         depth_m = self._rectifier.depth(depth) if depth is not None else None
         self.timers.add("preprocess", (time.perf_counter() - t) * 1e3)
         if self._t0 is None:
             self._t0 = float(timestamp)
-        frame = _Frame(self._index, float(timestamp), img, pyr, depth_m)
+        frame = _Frame(self._index, float(timestamp), img, pyr, depth_m, sharpness=sharp)
         self._index += 1
         return frame
 
@@ -333,7 +347,7 @@ class VisualOdometry:
         T = frame.T_world_cam.copy()
         T.setflags(write=False)
         published = PublishedMap(frame.index, frame.timestamp, T, self.map_intrinsics, frame.image, *arrays)
-        return _Reference(tref, published)
+        return _Reference(tref, published, affine=frame.affine)
 
     def _new_mapper(self):
         seed = self._rng_seed + self._mapper_count
@@ -356,7 +370,8 @@ class VisualOdometry:
         if use_depth and frame.depth_m is None:
             raise InputError("init=depth needs a depth image for the first frame (the sequence has none)")
         frame.T_world_cam = T_world_cam
-        mf = MapFrame(frame.index, frame.timestamp, frame.image, T_world_cam, 0.0)
+        frame.affine = self._monitor.affine          # the new map keeps the brightness chain
+        mf = MapFrame(frame.index, frame.timestamp, frame.image, T_world_cam, 0.0, frame.affine, frame.noise_sigma)
         mapper = self._new_mapper()
         if use_depth:
             mapper.initialize_from_depth(mf, frame.depth_m)
@@ -389,12 +404,21 @@ class VisualOdometry:
         base = self._last_pose if self._lost_count == 0 else self._last_good_pose
         guess_world = base @ self._velocity if self.config.tracking.constant_velocity else base
         T_guess = T_ref_world @ guess_world
-        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess)
+        tc = self.config.tracking
+        sigma = self._monitor.tracking_sigma(tc.sigma_i, tc.noise_sigma_gain, frame.sharpness)
+        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, self._monitor.affine_guess(ref.affine), sigma)
         for lvl, ms in tr.level_ms.items():
             self.timers.add(f"track_lvl{lvl}", ms)
         quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio),
-                   "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used)}
+                   "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used),
+                   "sharpness": float(frame.sharpness), "affine_a": tr.affine[0], "affine_b": tr.affine[1]}
         lost = bool(tr.lost) or not np.all(np.isfinite(tr.T_ref_new))
+        if not lost:
+            frame.affine = self._monitor.accept(ref.affine, tr.affine, tr.residual_sigma, tr.noise_sigma)
+            frame.noise_sigma = self._monitor.noise_sigma
+            self._recent_affine[frame.index] = frame.affine
+            self._recent_affine.pop(frame.index - 1000, None)
+        quality["noise_sigma"] = float(self._monitor.noise_sigma)
         T_world_new = None if lost else project_to_se3(ref.T_world_ref @ tr.T_ref_new)
         if self._verifier is not None:
             decision = self._verifier.add(frame.index, frame.timestamp, frame.image, T_world_new)
@@ -445,13 +469,15 @@ class VisualOdometry:
         idx0, ts0, img0 = boot.frames[0]
         # an empty map: with these poses, stereo searches the full depth range and creates the
         # hypotheses itself (a random prior would keep pixels whose guess is off by > 2 sigma)
-        mapper.initialize_from_depth(MapFrame(idx0, ts0, img0, boot_world, 0.0), np.zeros_like(img0))
+        aff = self._recent_affine
+        mapper.initialize_from_depth(MapFrame(idx0, ts0, img0, boot_world, 0.0, aff.get(idx0, (1.0, 0.0))),
+                                     np.zeros_like(img0))
         posed = [f for f in boot.frames[1:] if boot.T_j_init.get(f[0]) is not None]
         every = self.config.system.bootstrap_replay_every
         replay = [f for k, f in enumerate(posed) if (len(posed) - 1 - k) % every == 0]
         for idx, ts, img in replay:
             T = boot_world @ inverse_se3(boot.T_j_init[idx])
-            mapper.update(MapFrame(idx, ts, img, T, 0.0))
+            mapper.update(MapFrame(idx, ts, img, T, 0.0, aff.get(idx, (1.0, 0.0))))
         T_world_cur = project_to_se3(boot_world @ inverse_se3(boot.T_cur_init))
         frame.T_world_cam = T_world_cur
         self._install_mapper(mapper, frame)
@@ -523,12 +549,15 @@ class VisualOdometry:
 
     def _hand_to_mapping(self, frame: _Frame) -> bool:
         frame.mapper = self._mapper
+        if frame.sharpness < self.config.system.blur_min_sharpness:
+            return False  # motion blur: tracked only (no stereo reference, no map in it, no new hypotheses)
         in_startup = frame.timestamp - self._t0 < self.config.system.startup_s
         if self._thread is None:  # sync
             if not self._mapping_due(frame):
                 # not mapped, but still a stereo reference for later frames
                 self._mapper.add_reference(MapFrame(frame.index, frame.timestamp, frame.image,
-                                                    frame.T_world_cam, frame.residual))
+                                                    frame.T_world_cam, frame.residual, frame.affine,
+                                                    frame.noise_sigma))
                 return False
             self._map_frame(frame)
             return True
@@ -566,7 +595,8 @@ class VisualOdometry:
         mapper = frame.mapper
         if mapper is not self._mapper:
             return  # tracked against a map that was replaced meanwhile (other scale): skip it
-        mf = MapFrame(frame.index, frame.timestamp, frame.image, frame.T_world_cam, frame.residual)
+        mf = MapFrame(frame.index, frame.timestamp, frame.image, frame.T_world_cam, frame.residual, frame.affine,
+                      frame.noise_sigma)
         stats = mapper.update(mf)
         for name, ms in stats.stage_ms.items():
             self.timers.add(name, ms)

@@ -47,7 +47,7 @@ def epipolar_direction(cur, x, y, px, py, c, fx, fy, cx, cy, prm):
 
 
 def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, fy, cx, cy,
-                gxi, gyi, track_residual, prm, allow_long, scratch_len=64):
+                gxi, gyi, track_residual, prm, allow_long, ref_a, ref_b, scratch_len=64):
     """Same contract as ``_kernels.line_stereo`` (without scratch arrays)."""
     h, w = cur.shape
     Kmat = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
@@ -105,11 +105,19 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
             and np.all(cur_pts[[0, -1], 1] > 0) and np.all(cur_pts[[0, -1], 1] < h - 2)):
         return fail(kernels.OUT_OF_IMAGE)
     cvals = np.array([bilinear(cur, x, y) for x, y in cur_pts])
+    sat = prm[kernels.P_SATURATION] if abs(ref_a - 1.0) > prm[kernels.P_SAT_GAIN_TOL] else np.inf
+    if np.any(cvals >= sat):
+        return fail(kernels.NO_EPL)                       # clipped patch
+
+    def ref_sample(p):                                    # the reference in the current brightness
+        s = bilinear(ref, *p)
+        return ref_a * s + ref_b if s < sat else 1e6      # clipped samples never match
     n = int(np.linalg.norm(close - far) + 1e-6) + 1
     n = min(n, scratch_len - 4)
     positions = far + np.arange(n)[:, None] * inc
     # residual vectors of every candidate position (5 samples each)
-    resid = np.array([[bilinear(ref, *(p + o * inc)) for o in offs] for p in positions]) - cvals
+    # the reference in the current frame's brightness
+    resid = np.array([[ref_sample(p + o * inc) for o in offs] for p in positions]) - cvals
     ssd = np.sum(resid ** 2, axis=1)
     best = int(np.argmin(ssd))
     far_ones = [ssd[k] for k in range(n) if abs(k - best) >= 2]
@@ -175,7 +183,7 @@ def line_length(u, v, min_id, max_id, R, t, fx, fy, cx, cy):
     return n if math.isfinite(n) else math.inf
 
 
-def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c, ref_residual,
+def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c, ref_residual, ref_aff,
             st, fx, fy, cx, cy, prm, stride, offset, scratch_len):
     """Twin of ``observe_kernel``; ``st`` is a dict of the state arrays (modified in place)."""
     h, w = cur.shape
@@ -222,7 +230,7 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
                 code, r_id, r_var, r_len, _ = line_stereo(
                     cur, ref_images[ref_slots[b]], px, py, ex, ey, lo, prior, hi, ref_R[b], ref_t[b],
                     fx, fy, cx, cy, bilinear(gx, px, py), bilinear(gy, px, py), ref_residual[b], prm,
-                    b == nref - 1, scratch_len)
+                    b == nref - 1, ref_aff[b][0], ref_aff[b][1], scratch_len)
                 used = b
                 if code in (kernels.OUT_OF_IMAGE, kernels.TOO_LONG):
                     b += 1
@@ -276,7 +284,7 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
 
 
 def propagate(st, img_old, img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, min_grad, diff_const2,
-              diff_grad_mult, merge_fac, var_add, validity_cap):
+              diff_grad_mult, merge_fac, var_add, validity_cap, aff=(1.0, 0.0), saturation=250.0, sat_gain_tol=0.02):
     """Twin of ``propagate_kernel``: returns (new state dict, counts)."""
     h, w = img_old.shape
     out = {k: np.zeros((h, w), st[k].dtype) for k in ("idepth", "idepth_var", "idepth_s", "var_s", "valid",
@@ -312,8 +320,10 @@ def propagate(st, img_old, img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, m
                 src = bilinear(img_old, px, py)
             else:
                 src = float(img_old[min(max(int(py + 0.5), 0), h - 1), min(max(int(px + 0.5), 0), w - 1)])
-            r = bilinear(img_new, u, v) - src
-            if r * r > diff_const2 + diff_grad_mult * g * g:
+            r = bilinear(img_new, u, v) - (aff[0] * src + aff[1])     # old intensity in the new brightness
+            dst = bilinear(img_new, u, v)
+            clipped = abs(aff[0] - 1.0) > sat_gain_tol and (src >= saturation or dst >= saturation)
+            if not clipped and r * r > diff_const2 + diff_grad_mult * g * g:
                 counts["intensity"] += 1
                 continue
             new_var = (d_new / d) ** 4 * float(st["idepth_var"][y, x]) + var_add

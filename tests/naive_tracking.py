@@ -67,7 +67,8 @@ def bspline_sample(coef, u, v):
 def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b):
     """Twin of ``_kernels.accumulate``; returns the accumulator vector (``ACC_*`` layout)."""
     fx, fy, cx, cy = cam
-    sigma_i2, huber_k, aff_k = prm[kernels.TP_SIGMA_I2], prm[kernels.TP_HUBER], prm[kernels.TP_AFF_K]
+    sigma_i2, huber_k = prm[kernels.TP_SIGMA_I2], prm[kernels.TP_HUBER]
+    with_affine = prm[kernels.TP_AFF_ENABLED] > 0.5
     good_c2, good_g2 = prm[kernels.TP_GOOD_C2], prm[kernels.TP_GOOD_G2]
     border, min_z = prm[kernels.TP_BORDER], prm[kernels.TP_MIN_Z]
     pts = np.asarray(pts, np.float64)
@@ -81,8 +82,8 @@ def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b):
         v = fy * q[:, 1] / q[:, 2] + cy
     ok &= (u >= border) & (u < w - 1 - border) & (v >= border) & (v < h - 1 - border)
     acc = np.zeros(kernels.ACC_SIZE)
-    Hm = np.zeros((6, 6))
-    g = np.zeros(6)
+    Hm = np.zeros((8, 8))
+    g = np.zeros(8)
     for i in np.nonzero(ok)[0]:
         if interp == kernels.INTERP_BSPLINE:
             i_new, gx, gy = bspline_sample(img3[:, :, 0], u[i], v[i])
@@ -92,6 +93,8 @@ def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b):
             patch = img3[y0:y0 + 2, x0:x0 + 2]                   # [[p00, p10], [p01, p11]]
             wts = np.array([[(1 - ax) * (1 - ay), ax * (1 - ay)], [(1 - ax) * ay, ax * ay]])
             i_new, gx, gy = (patch * wts[:, :, None]).sum(axis=(0, 1))
+        if pts[i, 3] >= prm[kernels.TP_SATURATION] or i_new >= prm[kernels.TP_SATURATION]:
+            continue                                         # clipped pixel
         r = i_new - (aff_a * pts[i, 3] + aff_b)
         if not (np.isfinite(r) and np.isfinite(gx) and np.isfinite(gy)):
             continue
@@ -101,7 +104,9 @@ def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b):
         Jq = np.array([gx, gy]) @ dproj
         # d q / d xi for a left increment: [I | -hat(q)]
         hatq = np.array([[0, -Z, Y], [Z, 0, -X], [-Y, X, 0]])
-        J = Jq @ np.hstack([np.eye(3), -hatq])
+        J6 = Jq @ np.hstack([np.eye(3), -hatq])
+        # affine brightness: r = I_new - (exp(alpha) I_ref + b): dr/dalpha = -a I_ref, dr/db = -1
+        J = np.concatenate([J6, [-aff_a * pts[i, 3], -1.0] if with_affine else [0.0, 0.0]])
         # d r / d idepth: the reference point is p(d) = ray / d, q(d) = R ray / d + t
         d_ref = 1.0 / pts[i, 2]
         ray = pts[i, :3] * d_ref
@@ -114,16 +119,17 @@ def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b):
         acc[kernels.ACC_ENERGY] += rn ** 2 if rn <= huber_k else 2 * huber_k * rn - huber_k ** 2
         Hm += wgt * np.outer(J, J)
         g += wgt * J * r
+        if not with_affine:
+            Hm[6:, :] = 0.0
+            Hm[:, 6:] = 0.0
         acc[kernels.ACC_N] += 1
         if r * r / (good_c2 + good_g2 * (gx * gx + gy * gy)) < 1:
             acc[kernels.ACC_GOOD] += 1
         else:
             acc[kernels.ACC_BAD] += 1
         acc[kernels.ACC_ABS_R] += abs(r)
-        wa = 1.0 if abs(r) <= aff_k else aff_k / abs(r)
-        acc[kernels.ACC_AFF:kernels.ACC_AFF + 5] += wa * np.array([1, pts[i, 3], i_new, pts[i, 3] ** 2, pts[i, 3] * i_new])
-    acc[kernels.ACC_H:kernels.ACC_H + 21] = Hm[np.triu_indices(6)]
-    acc[kernels.ACC_G:kernels.ACC_G + 6] = g
+    acc[kernels.ACC_H:kernels.ACC_H + 36] = Hm[np.triu_indices(8)]
+    acc[kernels.ACC_G:kernels.ACC_G + 8] = g
     return acc
 
 

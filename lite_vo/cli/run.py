@@ -31,6 +31,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--calib", type=Path, default=None,
                    help="calibration file for the source (calib.txt, OpenCV YAML, Kalibr or ROS camera_info YAML); "
                         "overrides the sequence's own")
+    p.add_argument("--photometric", type=Path, default=None,
+                   help="folder with a photometric calibration in DSO's format (pcalib.txt, vignette.png; exposure "
+                        "times from times.txt); such files beside calib.txt are used without this option")
     p.add_argument("--topic", default=None, help="image topic of a ROS bag (needed when it has several)")
     p.add_argument("--format", choices=("tum", "kitti"), default="tum",
                    help="kitti: also write trajectory_kitti.txt (+ times.txt) for KITTI tables (trajectory.txt stays TUM)")
@@ -64,7 +67,7 @@ def run(args) -> int:
     res = run_sequence(seq, config, out, force=args.force, depth_source=args.depth, pose_source=args.poses,
                        max_frames=args.max_frames, start_frame=args.start_frame, quiet=args.quiet,
                        profile_name=args.profile, max_bad_frames=args.max_bad_frames,
-                       kitti=args.format == "kitti", plot=args.plot)
+                       kitti=args.format == "kitti", plot=args.plot, photometric=args.photometric)
     c = res.info["frames"]
     skipped = f", {c['skipped']} unreadable skipped" if c.get("skipped") else ""
     msg = (f"{seq.name}: {res.status}; {c['tracked']} of {c['in']} frames tracked, {c['lost']} lost, "

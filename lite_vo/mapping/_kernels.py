@@ -75,15 +75,18 @@ P_FILL_VALIDITY_SUM = 43
 P_UNBLACKLIST_SUM = 44
 P_INIT_VAR = 45
 P_FILL_VALIDITY = 46
-P_N = 47
+P_SATURATION = 47         # intensities at or above this are clipped: never matched, never compared ...
+P_SAT_GAIN_TOL = 48       # ... when the brightness transfer's gain differs from 1 by more than this
+P_N = 49
 
 #: the per-pixel arrays of a map (see the module docstring for dtypes)
 MapState = namedtuple("MapState", ["idepth", "idepth_var", "idepth_s", "var_s", "valid", "validity",
                                    "pos_x", "pos_y", "ref_id", "blacklist", "skip"])
 #: the stereo reference buffer, oldest first: ``images`` (slots, H, W) float32, ``slots`` / ``ids``
 #: (n,) int64, ``R`` / ``t`` (n, 3, 3) / (n, 3) T_ref_cur, ``c`` (n, 3) reference centres in the
-#: current camera, ``residual`` (n,) tracking residual of each reference
-RefFrames = namedtuple("RefFrames", ["images", "slots", "ids", "R", "t", "c", "residual"])
+#: current camera, ``residual`` (n,) tracking residual of each reference, ``affine`` (n, 2) the
+#: brightness transfer ``(a, b)`` of each reference into the current frame: ``I_cur ~ a I_ref + b``
+RefFrames = namedtuple("RefFrames", ["images", "slots", "ids", "R", "t", "c", "residual", "affine"])
 
 # return codes of line_stereo
 OK = 0
@@ -190,10 +193,12 @@ def _slide_into(p, q, dp, dq, lo, hi):
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
 def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, fy, cx, cy,
-                gxi, gyi, track_residual, prm, allow_long, samples, ssd):
+                gxi, gyi, track_residual, prm, allow_long, ref_a, ref_b, samples, ssd):
     """Search the epipolar line of current pixel (u, v) in ``ref``.
 
     ``R, t`` = T_ref_cur; ``(epxn, epyn)`` unit epipolar direction in the current image;
+    ``ref_a, ref_b``: brightness transfer of the reference into the current frame (the SSD compares
+    ``ref_a * I_ref + ref_b`` with ``I_cur``: exposure changes do not bias the match);
     ``(gxi, gyi)`` half-central-difference gradient at (u, v); ``samples``/``ssd`` scratch.
     Returns (code, idepth, idepth_var, epl_length, error).
     """
@@ -270,6 +275,10 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     c2 = _bilinear(cur, u, v)
     c3 = _bilinear(cur, u + sx, v + sy)
     c4 = _bilinear(cur, u + 2.0 * sx, v + 2.0 * sy)
+    # clipped pixels: where the exposure changed, a clipped patch's edges move with it
+    sat = prm[P_SATURATION] if abs(ref_a - 1.0) > prm[P_SAT_GAIN_TOL] else np.inf
+    if c0 >= sat or c1 >= sat or c2 >= sat or c3 >= sat or c4 >= sat:
+        return NO_EPL, 0.0, 0.0, 0.0, 0.0      # a clipped patch: its edges move with the exposure
 
     dxl = close_x - far_x
     dyl = close_y - far_y
@@ -278,7 +287,8 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
         n_steps = samples.shape[0] - 4
     # reference samples at far + (j - 2) * inc, j = 0 .. n_steps + 3 (all inside by the border test)
     for j in range(n_steps + 4):
-        samples[j] = _bilinear(ref, far_x + (j - 2) * incx, far_y + (j - 2) * incy)
+        sv = _bilinear(ref, far_x + (j - 2) * incx, far_y + (j - 2) * incy)
+        samples[j] = ref_a * sv + ref_b if sv < sat else 1e6     # clipped: no window through it matches
     best = 0
     best_err = 1e50
     for k in range(n_steps):
@@ -378,7 +388,7 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
     6 removed (gradient too low), 7 epipolar line unusable (too short, weak gradient along it),
     8 skipped (converged: its last search line was shorter than min_epl_search).
     """
-    ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c, ref_residual = refs
+    ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c, ref_residual, ref_aff = refs
     idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist, skip = st
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     h, w = cur.shape
@@ -446,7 +456,8 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
                 gyi = _bilinear(gy, px, py)
                 code, r_id, r_var, r_len, r_err = line_stereo(
                     cur, ref_images[slot], px, py, epxn, epyn, lo, prior, hi, ref_R[b], ref_t[b],
-                    fx, fy, cx, cy, gxi, gyi, ref_residual[b], prm, b == nref - 1, samples, ssd)
+                    fx, fy, cx, cy, gxi, gyi, ref_residual[b], prm, b == nref - 1, ref_aff[b, 0], ref_aff[b, 1],
+                    samples, ssd)
                 used = b
                 if code == OUT_OF_IMAGE or code == TOO_LONG:
                     b += 1
@@ -513,9 +524,11 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
-def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, new):
+def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, new):
     """Forward-warp every hypothesis of the map ``old`` into the map ``new`` of the new frame
-    (both :class:`MapState`; serial: collisions). ``R, t`` = T_new_old; ``cam = (fx, fy, cx, cy)``.
+    (both :class:`MapState`; serial: collisions). ``R, t`` = T_new_old; ``cam = (fx, fy, cx, cy)``;
+    ``aff = (a, b)``: brightness transfer of the old frame into the new one (the intensity check
+    compares ``I_new`` with ``a * I_old + b``).
 
     ``new.valid`` must be all 0 on entry; the other arrays of ``new`` are only written where a
     hypothesis lands (``blacklist`` is reset to 0 there). Returns (kept, dropped_border,
@@ -533,6 +546,8 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, new):
     merge_fac = prm[P_PROP_MERGE]
     var_add = prm[P_PROP_VAR_ADD]
     validity_cap = prm[P_VALIDITY_CAP]
+    sat = prm[P_SATURATION]
+    sat_check = abs(aff[0] - 1.0) > prm[P_SAT_GAIN_TOL]
     h, w = idepth_s.shape
     kept = 0
     n_border = 0
@@ -575,8 +590,9 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, new):
             else:
                 src = np.float64(img_old[min(max(int(py + 0.5), 0), h - 1), min(max(int(px + 0.5), 0), w - 1)])
             dst = _bilinear(img_new, u, v)
-            r = dst - src
-            if r * r / (diff_const2 + diff_grad_mult * g * g) > 1.0:
+            r = dst - (aff[0] * src + aff[1])
+            clipped = sat_check and (src >= sat or dst >= sat)    # under an exposure change: not comparable
+            if not clipped and r * r / (diff_const2 + diff_grad_mult * g * g) > 1.0:
                 n_int += 1
                 continue
             ratio = d_new / d
@@ -763,6 +779,7 @@ def warmup() -> None:
     prm[P_MAX_SCALE] = 1.4
     prm[P_BORDER_SAMPLES] = 2.0
     prm[P_REG_RADIUS] = 2.0
+    prm[P_SATURATION] = 255.0
     cam = np.array([30.0, 30.0, 15.5, 11.5])
     st = new_state(h, w)
     st.valid[4:20, 4:28] = 1
@@ -773,11 +790,12 @@ def warmup() -> None:
     R = np.eye(3)
     t = np.array([0.01, 0.0, 0.0])
     refs = RefFrames(np.stack([img, img]), np.arange(2, dtype=np.int64), np.arange(2, dtype=np.int64),
-                     np.stack([R, R]), np.stack([t, t]), np.stack([-t, -t]), np.zeros(2))
+                     np.stack([R, R]), np.stack([t, t]), np.stack([-t, -t]), np.zeros(2),
+                     np.array([[1.0, 0.0], [1.0, 0.0]]))
     status = np.zeros((h, w), np.int8)
     observe_kernel(img, gx, gy, mg, refs, st, cam, prm, 1, 0, 64, status)
     new = new_state(h, w)
-    propagate_kernel(st, img, img, mg, R, t, cam, prm, new)
+    propagate_kernel(st, img, img, mg, R, t, cam, prm, np.array([1.0, 0.0]), new)
     o_valid = np.zeros((h, w), np.uint8)
     regularize_kernel(st, prm, o_valid)
     fill_kernel(st, mg, prm, o_valid)
@@ -785,4 +803,4 @@ def warmup() -> None:
     epipolar_direction(img, 10, 10, 10.0, 10.0, -t, 30.0, 30.0, 15.5, 11.5, prm)
     line_length(10.0, 10.0, 0.0, 1.0, R, t, 30.0, 30.0, 15.5, 11.5)
     line_stereo(img, img, 10.0, 10.0, 1.0, 0.0, 0.0, 1.0, 2.0, R, t, 30.0, 30.0, 15.5, 11.5, 1.0, 0.0, 0.0,
-                prm, True, np.empty(64), np.empty(64))
+                prm, True, 1.0, 0.0, np.empty(64), np.empty(64))

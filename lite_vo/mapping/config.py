@@ -31,8 +31,16 @@ class MappingConfig:
     min_scale: float = param(0.7, "reject matches with an epipolar scale change below this", 0.01, 1.0)
     max_scale: float = param(1.4, "reject matches with an epipolar scale change above this", 1.0, 100.0)
     subpixel: bool = param(True, "sub-pixel refinement of the match")
+    saturation: float = param(250.0, "intensities at or above this are clipped: a patch touching them is not searched, "
+                              "reference samples there never match, propagation does not compare them (256 = off)",
+                              0.0, 1e6)
+    saturation_gain_tol: float = param(0.02, "the clipped-pixel rules apply only between frames whose brightness gain "
+                                       "differs by more than this (without an exposure change, the edges of clipped "
+                                       "areas are stable and useful)", 0.0, 10.0)
     # observation variance (eq. 3.6-3.12)
     sigma_i: float = param(4.0, "image noise std in grey levels for the photometric error", 0.01, 100.0)
+    noise_sigma_gain: float = param(1.0, "the photometric variance uses sigma = max(sigma_i, this * the frame's image "
+                                    "noise estimate) (0 = constant sigma_i)", 0.0, 10.0)
     geo_error_base: float = param(0.25, "geometric error e = this * (1 + tracking residual of the reference) (px)", 0.0, 100.0)
     subpixel_var: float = param(0.05, "disparity discretisation variance with sub-pixel refinement (px^2)", 0.0, 10.0)
     no_subpixel_var: float = param(0.5, "disparity discretisation variance without sub-pixel refinement (px^2)", 0.0, 10.0)

@@ -10,7 +10,7 @@ Threading: a Mapper is owned by ONE thread (the mapping thread, or the caller in
 All its members are written by that thread only; :meth:`Mapper.current` returns copies, so the
 arrays it hands out can be read by another thread (tracking) without locks.
 
-Imports: numpy, ``lite_vo.camera``, ``lite_vo.geometry``, ``lite_vo.errors`` and this package;
+Imports: numpy, ``lite_vo.camera``, ``lite_vo.errors``, ``lite_vo.photometric`` and this package;
 never tracking, system, io or anything of the AR demo.
 """
 from __future__ import annotations
@@ -22,6 +22,7 @@ import numpy as np
 
 from ..camera import PinholeIntrinsics
 from ..errors import InputError
+from ..photometric import affine_transfer
 from . import _kernels as kernels
 from ._kernels import MapState, RefFrames, new_state
 from .config import MappingConfig
@@ -29,12 +30,21 @@ from .config import MappingConfig
 
 @dataclass(frozen=True)
 class MapFrame:
-    """A tracked frame at the mapping resolution (image float32 0..255, pose T_world_cam)."""
+    """A tracked frame at the mapping resolution (image float32 0..255, pose T_world_cam).
+
+    ``affine = (A, B)``: the frame's brightness relative to a common one, ``I = A * J + B`` (chained
+    from the tracker's frame-to-reference estimates); stereo and propagation compare intensities of
+    two frames after mapping one into the other's brightness. ``noise_sigma``: the frame's image
+    noise estimate (grey levels; NaN = unknown): the photometric variance uses
+    ``max(config.sigma_i, noise_sigma)``."""
     frame_id: int
     timestamp: float
     image: np.ndarray
     T_world_cam: np.ndarray
     tracking_residual: float = 0.0
+    affine: tuple = (1.0, 0.0)
+    noise_sigma: float = float("nan")
+
 
 
 @dataclass
@@ -122,6 +132,8 @@ def mapping_params(cfg: MappingConfig) -> np.ndarray:
     p[kernels.P_UNBLACKLIST_SUM] = cfg.unblacklist_validity_sum
     p[kernels.P_INIT_VAR] = cfg.init_var
     p[kernels.P_FILL_VALIDITY] = cfg.fill_validity
+    p[kernels.P_SATURATION] = cfg.saturation
+    p[kernels.P_SAT_GAIN_TOL] = cfg.saturation_gain_tol
     return p
 
 
@@ -308,8 +320,9 @@ class Mapper:
         np.copyto(ns.pos_x, self._grid_x)   # pixels left empty keep their integer position
         np.copyto(ns.pos_y, self._grid_y)
         np.copyto(ns.blacklist, old.blacklist)   # the blacklist stays with the pixel location
+        aff = np.array(affine_transfer(self._cur.frame.affine, new.frame.affine))
         res = kernels.propagate_kernel(old, self._cur.image, new.image, new.maxgrad, R, t, self._cam,
-                                       self._params, ns)
+                                       self._params, aff, ns)
         k = cfg.blacklist_recovery_frames
         if k > 0 and self._iteration % k == 0:
             np.add(ns.blacklist, 1, out=ns.blacklist, where=ns.blacklist < 0)
@@ -326,6 +339,7 @@ class Mapper:
         ts = np.zeros((n, 3))
         cs = np.zeros((n, 3))
         res = np.zeros(n)
+        aff = np.zeros((n, 2))
         T_world_cur = np.asarray(self._cur.frame.T_world_cam, np.float64)
         for i, (f, slot) in enumerate(self._buffer):
             T_ref_cur = np.linalg.inv(np.asarray(f.T_world_cam, np.float64)) @ T_world_cur
@@ -335,7 +349,8 @@ class Mapper:
             cs[i] = -T_ref_cur[:3, :3].T @ T_ref_cur[:3, 3]      # reference centre in the current frame
             r = float(f.tracking_residual)
             res[i] = r if np.isfinite(r) and r >= 0 else 0.0   # unknown residual: no extra geometric error
-        return RefFrames(self._buf_images, slots, ids, Rs, ts, cs, res)
+            aff[i] = affine_transfer(f.affine, self._cur.frame.affine)
+        return RefFrames(self._buf_images, slots, ids, Rs, ts, cs, res, aff)
 
     def _budget_stride(self, n_cand: int) -> int:
         """Chapter 3.4: sub-sample the candidates (rotating offset) so the iteration fits the budget.
@@ -368,8 +383,13 @@ class Mapper:
         status = np.zeros((self.h, self.w), np.int8)
         if len(self._buffer) > 0 and self.h > 6 and self.w > 6:
             scratch = int(cfg.max_epl_search + cfg.min_epl_search) + 16
+            prm = self._params
+            sigma = cfg.noise_sigma_gain * cur.frame.noise_sigma
+            if np.isfinite(sigma) and sigma > cfg.sigma_i:    # a noisy frame: wider photometric variance
+                prm = prm.copy()
+                prm[kernels.P_SIGMA_I2] = sigma * sigma
             kernels.observe_kernel(cur.image, cur.gx, cur.gy, cur.maxgrad, self._reference_frames(), s, self._cam,
-                                   self._params, int(stride), int(self._iteration % stride), scratch, status)
+                                   prm, int(stride), int(self._iteration % stride), scratch, status)
         counts = np.bincount(status.ravel().astype(np.int64), minlength=9)
         stats.no_epipolar, stats.skipped_converged = int(counts[7]), int(counts[8])
         stats.updated, stats.created, stats.inconsistent = int(counts[1]), int(counts[2]), int(counts[3])

@@ -3,11 +3,16 @@
 Owns the hot loops of :mod:`lite_vo.tracking`:
 
 * :func:`accumulate` - ONE pass over the reference points of a level: warp into the new image,
-  bilinear intensity and gradient, residual, variance + Huber weight, 6x6 normal equations,
-  robust energy, good/bad counts and the affine-brightness sums.
+  bilinear intensity and gradient, residual, variance + Huber weight, the 8x8 normal equations of
+  pose and affine brightness, robust energy, good/bad counts.
 * :func:`lm_level` - the iteratively re-weighted Levenberg-Marquardt loop of one pyramid level
   (calls :func:`accumulate` once per iteration; no Python between iterations).
-* small helpers: :func:`exp_se3_nb`, :func:`solve6` (Cholesky), pose composition.
+* small helpers: :func:`exp_se3_nb`, :func:`solve_spd` (Cholesky), pose composition.
+
+Affine brightness (thesis 6.3.3, DSO): ``I_new(warp(p)) = a * I_ref(p) + b`` with ``a = exp(alpha)``;
+``(alpha, b)`` are estimated jointly with the pose in the same LM system (8 unknowns: twist, alpha,
+b), with a weak prior pulling ``alpha`` and ``b`` to 0 (energy ``N * (prior_a alpha^2 + prior_b b^2)``
+for N used points). With ``TP_AFF_ENABLED = 0`` the system is 6x6 and ``(a, b)`` stay as given.
 
 The pose estimated here is ``T_new_ref`` (reference points are warped into the new image), with
 left-multiplicative updates ``T <- exp(dxi) @ T``; the Jacobian is then evaluated at the warped
@@ -26,29 +31,30 @@ import numpy as np
 from numba import njit
 
 PTS_COLS = 5
-BUF_ROWS = 8       # per-point scratch rows: jx, jy, jz, qx, qy, qz, r, w
+BUF_ROWS = 9       # per-point scratch rows: jx, jy, jz, qx, qy, qz, r, w, I_ref
+NP = 8             # unknowns: twist (6), alpha, b
 
 # accumulator layout (float64 vector filled by accumulate)
-ACC_H = 0          # 21 entries: upper triangle of H, row-major
-ACC_G = 21         # 6 entries: g = sum w r J
-ACC_ENERGY = 27    # sum of the Huber energy of the normalised residuals
-ACC_N = 28         # points inside the image (used)
-ACC_GOOD = 29      # good residuals
-ACC_BAD = 30       # bad residuals
-ACC_AFF = 31       # 5 entries: sw, s_ref, s_new, s_ref2, s_ref_new (affine-brightness sums)
-ACC_ABS_R = 36     # sum |r| (grey levels)
-ACC_SIZE = 37
+ACC_H = 0          # 36 entries: upper triangle of the 8x8 H, row-major (affine rows 0 when disabled)
+ACC_G = 36         # 8 entries: g = sum w r J
+ACC_ENERGY = 44    # sum of the Huber energy of the normalised residuals
+ACC_N = 45         # points inside the image (used)
+ACC_GOOD = 46      # good residuals
+ACC_BAD = 47       # bad residuals
+ACC_ABS_R = 48     # sum |r| (grey levels)
+ACC_SIZE = 49
 
 # lm_level statistics output
 ST_ITER = 0        # outer LM iterations
-ST_ERR = 1         # final mean energy
+ST_ERR = 1         # final mean energy (data + affine prior, per point)
 ST_STATUS = 2      # 0 converged/cap, 1 no points, 2 singular system
-ST_SIZE = 3
+ST_LAST_N = 3      # points in the scratch buffer: its residual row is that of the last evaluation
+ST_SIZE = 4
 
 # indices into the tracking parameter vector (layout fixed; values come from TrackingConfig)
 TP_SIGMA_I2 = 0           # sigma_i^2 (grey levels^2)
 TP_HUBER = 1              # Huber threshold on the normalised residual
-TP_AFF_K = 2              # robust threshold of the affine-brightness sums (grey levels)
+TP_AFF_PRIOR_A = 2        # weak prior on alpha = log a, per used point
 TP_GOOD_C2 = 3            # good-residual test constant^2
 TP_GOOD_G2 = 4            # good-residual test gradient factor^2
 TP_BORDER = 5             # a warped point must lie this far inside the image (px)
@@ -62,9 +68,10 @@ TP_LAMBDA_REJECT_FACTOR = 12
 TP_MIN_POINTS = 13
 TP_SOLVE_EPS = 14
 TP_MIN_HESSIAN_DIAG = 15
-TP_AFF_ENABLED = 16       # 1: estimate the affine brightness
-TP_AFF_MIN_VAR = 17
-TP_N = 18
+TP_AFF_ENABLED = 16       # 1: estimate the affine brightness jointly with the pose
+TP_AFF_PRIOR_B = 17       # weak prior on the offset b (grey levels^-2), per used point
+TP_SATURATION = 18        # points whose reference or new intensity is at or above this are skipped
+TP_N = 19
 
 INTERP_BILINEAR = 0   # bilinear intensity + bilinearly interpolated central-difference gradients
 INTERP_BSPLINE = 1    # cubic B-spline value and its exact derivative (4x4 taps)
@@ -121,8 +128,10 @@ def _sample_bspline(coef, x0, y0, tx, ty):
 # Reduction-only kernel: "reassoc" lets LLVM vectorise the sums (summation order changes, nothing
 # else: NaN/inf semantics stay strict, no approximate functions).
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
-def _reduce_normal_equations(buf, n, acc):
-    """H (upper triangle) and g from the per-point buffer rows ``jx, jy, jz, qx, qy, qz, r, w``."""
+def _reduce_normal_equations(buf, n, aff_a, with_affine, acc):
+    """H (upper triangle, 8x8) and g from the per-point buffer rows ``jx, jy, jz, qx, qy, qz, r, w, I_ref``.
+
+    The affine columns are ``dr/dalpha = -a I_ref`` and ``dr/db = -1`` (left 0 without ``with_affine``)."""
     jx = buf[0]; jy = buf[1]; jz = buf[2]
     qx = buf[3]; qy = buf[4]; qz = buf[5]
     rr = buf[6]; ww = buf[7]
@@ -151,12 +160,47 @@ def _reduce_normal_equations(buf, n, acc):
         h55 += b5 * a5
         g0 += wr * a0; g1 += wr * a1; g2 += wr * a2; g3 += wr * a3; g4 += wr * a4; g5 += wr * a5
     acc[0] = h00; acc[1] = h01; acc[2] = h02; acc[3] = h03; acc[4] = h04; acc[5] = h05
-    acc[6] = h11; acc[7] = h12; acc[8] = h13; acc[9] = h14; acc[10] = h15
-    acc[11] = h22; acc[12] = h23; acc[13] = h24; acc[14] = h25
-    acc[15] = h33; acc[16] = h34; acc[17] = h35
-    acc[18] = h44; acc[19] = h45
-    acc[20] = h55
-    acc[21] = g0; acc[22] = g1; acc[23] = g2; acc[24] = g3; acc[25] = g4; acc[26] = g5
+    acc[8] = h11; acc[9] = h12; acc[10] = h13; acc[11] = h14; acc[12] = h15
+    acc[15] = h22; acc[16] = h23; acc[17] = h24; acc[18] = h25
+    acc[21] = h33; acc[22] = h34; acc[23] = h35
+    acc[26] = h44; acc[27] = h45
+    acc[30] = h55
+    acc[ACC_G + 0] = g0; acc[ACC_G + 1] = g1; acc[ACC_G + 2] = g2
+    acc[ACC_G + 3] = g3; acc[ACC_G + 4] = g4; acc[ACC_G + 5] = g5
+    if with_affine:
+        _reduce_affine(buf, n, aff_a, acc)
+
+
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _reduce_affine(buf, n, aff_a, acc):
+    """The affine rows of H and g: columns ``-a I_ref`` (alpha) and ``-1`` (b)."""
+    jx = buf[0]; jy = buf[1]; jz = buf[2]
+    qx = buf[3]; qy = buf[4]; qz = buf[5]
+    rr = buf[6]; ww = buf[7]; ir = buf[8]
+    p0 = 0.0; p1 = 0.0; p2 = 0.0; p3 = 0.0; p4 = 0.0; p5 = 0.0     # sum w J_k (-a I_ref)
+    q0 = 0.0; q1 = 0.0; q2 = 0.0; q3 = 0.0; q4 = 0.0; q5 = 0.0     # sum w J_k (-1)
+    h66 = 0.0; h67 = 0.0; h77 = 0.0; g6 = 0.0; g7 = 0.0
+    for i in range(n):
+        a0 = jx[i]; a1 = jy[i]; a2 = jz[i]
+        x = qx[i]; y = qy[i]; z = qz[i]
+        a3 = y * a2 - z * a1
+        a4 = z * a0 - x * a2
+        a5 = x * a1 - y * a0
+        w = ww[i]
+        c6 = -aff_a * ir[i]
+        wc6 = w * c6
+        p0 += wc6 * a0; p1 += wc6 * a1; p2 += wc6 * a2; p3 += wc6 * a3; p4 += wc6 * a4; p5 += wc6 * a5
+        q0 -= w * a0; q1 -= w * a1; q2 -= w * a2; q3 -= w * a3; q4 -= w * a4; q5 -= w * a5
+        h66 += wc6 * c6
+        h67 -= wc6
+        h77 += w
+        g6 += wc6 * rr[i]
+        g7 -= w * rr[i]
+    acc[6] = p0; acc[13] = p1; acc[19] = p2; acc[24] = p3; acc[28] = p4; acc[31] = p5
+    acc[7] = q0; acc[14] = q1; acc[20] = q2; acc[25] = q3; acc[29] = q4; acc[32] = q5
+    acc[33] = h66; acc[34] = h67; acc[35] = h77
+    acc[ACC_G + 6] = g6
+    acc[ACC_G + 7] = g7
 
 
 @njit(cache=True, nogil=True, fastmath=False)
@@ -170,19 +214,20 @@ def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b, buf, acc):
     ``[border, W-1-border) x [border, H-1-border)`` and the interpolated values are finite.
     Residual ``r = I_new(warp) - (aff_a * I_ref + aff_b)``; weight
     ``w = 1 / (sigma_i^2 + var * (dr/d idepth)^2)`` times Huber (threshold ``prm[TP_HUBER]`` on ``|r| sqrt(w)``).
-    Results are written into ``acc`` (layout ``ACC_*``, zeroed first). ``buf``: float64 scratch of
-    shape (8, >= N); the per-point loop fills it, a vectorised reduction then sums H and g.
+    Results are written into ``acc`` (layout ``ACC_*``, zeroed first; the affine rows of H and g only
+    when ``prm[TP_AFF_ENABLED]``). ``buf``: float64 scratch of shape (BUF_ROWS, >= N); the per-point
+    loop fills it, a vectorised reduction then sums H and g. Returns the number of used points.
     """
     for k in range(acc.shape[0]):
         acc[k] = 0.0
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     sigma_i2 = prm[TP_SIGMA_I2]
     huber_k = prm[TP_HUBER]
-    aff_k = prm[TP_AFF_K]
     good_c2 = prm[TP_GOOD_C2]
     good_g2 = prm[TP_GOOD_G2]
     border = prm[TP_BORDER]
     min_z = prm[TP_MIN_Z]
+    sat = prm[TP_SATURATION]
     h = img3.shape[0]
     w = img3.shape[1]
     umax = w - 1.0 - border
@@ -192,10 +237,9 @@ def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b, buf, acc):
     r20 = T[2, 0]; r21 = T[2, 1]; r22 = T[2, 2]; t2 = T[2, 3]
     huber_k2 = huber_k * huber_k
     energy = 0.0; n_good = 0; abs_r = 0.0
-    a_sw = 0.0; a_sx = 0.0; a_sy = 0.0; a_sxx = 0.0; a_sxy = 0.0
     bjx = buf[0]; bjy = buf[1]; bjz = buf[2]
     bqx = buf[3]; bqy = buf[4]; bqz = buf[5]
-    br = buf[6]; bw = buf[7]
+    br = buf[6]; bw = buf[7]; bir = buf[8]
     m = 0
     n = pts.shape[0]
     for i in range(n):
@@ -230,6 +274,8 @@ def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b, buf, acc):
             gy = (w00 * img3[y0, x0, 2] + w10 * img3[y0, x0 + 1, 2]
                   + w01 * img3[y0 + 1, x0, 2] + w11 * img3[y0 + 1, x0 + 1, 2])
         i_ref = np.float64(pts[i, 3])
+        if i_ref >= sat or i_new >= sat:       # clipped: the brightness model does not hold there
+            continue
         r = i_new - (aff_a * i_ref + aff_b)
         if not (abs(r) < np.inf and abs(gx) < np.inf and abs(gy) < np.inf):
             continue
@@ -251,37 +297,26 @@ def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b, buf, acc):
             energy += 2.0 * huber_k * rn - huber_k2
         bjx[m] = jx; bjy[m] = jy; bjz[m] = jz
         bqx[m] = qx; bqy[m] = qy; bqz[m] = qz
-        br[m] = r; bw[m] = wgt
+        br[m] = r; bw[m] = wgt; bir[m] = i_ref
         m += 1
         if r * r < good_c2 + good_g2 * (gx * gx + gy * gy):
             n_good += 1
-        ar = abs(r)
-        abs_r += ar
-        wa = 1.0 if ar <= aff_k else aff_k / ar
-        a_sw += wa
-        a_sx += wa * i_ref
-        a_sy += wa * i_new
-        a_sxx += wa * i_ref * i_ref
-        a_sxy += wa * i_ref * i_new
-    _reduce_normal_equations(buf, m, acc)
+        abs_r += abs(r)
+    _reduce_normal_equations(buf, m, aff_a, prm[TP_AFF_ENABLED] > 0.5, acc)
     acc[ACC_ENERGY] = energy
     acc[ACC_N] = m
     acc[ACC_GOOD] = n_good
     acc[ACC_BAD] = m - n_good
     acc[ACC_ABS_R] = abs_r
-    acc[ACC_AFF + 0] = a_sw
-    acc[ACC_AFF + 1] = a_sx
-    acc[ACC_AFF + 2] = a_sy
-    acc[ACC_AFF + 3] = a_sxx
-    acc[ACC_AFF + 4] = a_sxy
+    return m
 
 
 @njit(cache=True, nogil=True, fastmath=False)
 def unpack_normal_equations(acc, H, g):
-    """Fill the symmetric 6x6 ``H`` and the 6-vector ``g`` from an accumulator vector."""
+    """Fill the symmetric 8x8 ``H`` and the 8-vector ``g`` from an accumulator vector."""
     k = 0
-    for i in range(6):
-        for j in range(i, 6):
+    for i in range(NP):
+        for j in range(i, NP):
             H[i, j] = acc[ACC_H + k]
             H[j, i] = acc[ACC_H + k]
             k += 1
@@ -289,20 +324,22 @@ def unpack_normal_equations(acc, H, g):
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def solve6(A, b, x, rel_eps):
-    """Solve the SPD system ``A x = b`` (6x6) by Cholesky; False when a pivot is not positive.
+def solve_spd(A, b, x, n, rel_eps):
+    """Solve the SPD system ``A[:n, :n] x[:n] = b[:n]`` by Cholesky; False when a pivot is not positive.
 
     A pivot counts as not positive when it is below ``rel_eps`` times the largest diagonal entry
-    (or not finite). ``A`` is left unchanged.
+    (or not finite). ``A`` is left unchanged; ``x[n:]`` is set to 0.
     """
-    L = np.zeros((6, 6))
+    L = np.zeros((n, n))
+    for i in range(n, x.shape[0]):
+        x[i] = 0.0
     dmax = 0.0
-    for i in range(6):
+    for i in range(n):
         if A[i, i] > dmax:
             dmax = A[i, i]
     if not (dmax > 0.0 and dmax < np.inf):
         return False
-    for j in range(6):
+    for j in range(n):
         s = A[j, j]
         for k in range(j):
             s -= L[j, k] * L[j, k]
@@ -310,20 +347,20 @@ def solve6(A, b, x, rel_eps):
             return False
         ljj = np.sqrt(s)
         L[j, j] = ljj
-        for i in range(j + 1, 6):
+        for i in range(j + 1, n):
             s2 = A[i, j]
             for k in range(j):
                 s2 -= L[i, k] * L[j, k]
             L[i, j] = s2 / ljj
-    y = np.zeros(6)
-    for i in range(6):
+    y = np.zeros(n)
+    for i in range(n):
         s = b[i]
         for k in range(i):
             s -= L[i, k] * y[k]
         y[i] = s / L[i, i]
-    for i in range(5, -1, -1):
+    for i in range(n - 1, -1, -1):
         s = y[i]
-        for k in range(i + 1, 6):
+        for k in range(i + 1, n):
             s -= L[k, i] * x[k]
         x[i] = s / L[i, i]
     return True
@@ -331,7 +368,8 @@ def solve6(A, b, x, rel_eps):
 
 @njit(cache=True, nogil=True, fastmath=False)
 def exp_se3_nb(xi, out):
-    """``out = exp(xi)`` for the twist ``xi = (v, omega)`` (same maths as geometry.exp_se3)."""
+    """``out = exp(xi)`` for the twist ``xi = (v, omega)`` (same maths as geometry.exp_se3; entries of
+    ``xi`` after the sixth are ignored)."""
     wx = xi[3]; wy = xi[4]; wz = xi[5]
     th2 = wx * wx + wy * wy + wz * wz
     th = np.sqrt(th2)
@@ -379,22 +417,6 @@ def _matmul4(A, B, out):
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def _affine_from_sums(acc, a_prev, b_prev, min_var):
-    """Weighted least squares ``I_new ~ a I_ref + b`` from the accumulated robust sums."""
-    sw = acc[ACC_AFF + 0]
-    if not (sw > 0.0):
-        return a_prev, b_prev
-    mx = acc[ACC_AFF + 1] / sw
-    my = acc[ACC_AFF + 2] / sw
-    vxx = acc[ACC_AFF + 3] / sw - mx * mx
-    vxy = acc[ACC_AFF + 4] / sw - mx * my
-    if not (vxx > min_var):
-        return a_prev, my - a_prev * mx
-    a = vxy / vxx
-    return a, my - a * mx
-
-
-@njit(cache=True, nogil=True, fastmath=False)
 def lm_level(pts, img3, interp, T_init, cam, prm, max_iter, aff_in, buf, T_out, acc_out, aff_out, stats):
     """Iteratively re-weighted Levenberg-Marquardt on ``T_new_ref`` for one pyramid level.
 
@@ -404,6 +426,9 @@ def lm_level(pts, img3, interp, T_init, cam, prm, max_iter, aff_in, buf, T_out, 
     ``H_ii *= (1 + lambda)``. The level stops when ``err/last_err > TP_CONV_RATIO`` after an accepted
     step, when a rejected step has ``|dxi|^2 < TP_CONV_EPS``, after ``max_iter`` accepted-or-final
     iterations, or when the system is singular. Each evaluation is one :func:`accumulate` pass.
+    With ``prm[TP_AFF_ENABLED]`` the unknowns are the twist, ``alpha = log a`` and ``b`` (starting
+    from ``aff_in = (a, b)``; prior ``N * (TP_AFF_PRIOR_A alpha^2 + TP_AFF_PRIOR_B b^2)`` added to H, g
+    and the energy); otherwise only the twist, with ``(a, b) = aff_in`` fixed.
     Writes the final pose (``T_out``), its accumulator (``acc_out``), the affine brightness
     (``aff_out``) and ``stats`` (layout ``ST_*``).
     """
@@ -417,31 +442,41 @@ def lm_level(pts, img3, interp, T_init, cam, prm, max_iter, aff_in, buf, T_out, 
     solve_eps = prm[TP_SOLVE_EPS]
     min_hessian_diag = prm[TP_MIN_HESSIAN_DIAG]
     aff_enabled = prm[TP_AFF_ENABLED] > 0.5
-    aff_min_var = prm[TP_AFF_MIN_VAR]
+    n_unk = NP if aff_enabled else 6
+    prior_a = prm[TP_AFF_PRIOR_A] if aff_enabled else 0.0
+    prior_b = prm[TP_AFF_PRIOR_B] if aff_enabled else 0.0
     T = T_init.copy()
     Tn = np.empty((4, 4))
     E = np.empty((4, 4))
     acc = acc_out
     acc_new = np.empty(ACC_SIZE)
-    H = np.empty((6, 6))
-    A = np.empty((6, 6))
-    g = np.empty(6)
-    b = np.empty(6)
-    inc = np.zeros(6)
+    H = np.empty((NP, NP))
+    A = np.empty((NP, NP))
+    g = np.empty(NP)
+    b = np.empty(NP)
+    inc = np.zeros(NP)
     aff_a = aff_in[0]
     aff_b = aff_in[1]
-    accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b, buf, acc)
+    alpha = np.log(aff_a) if aff_a > 0.0 else 0.0
+    aff_a = np.exp(alpha)
+    last_n = accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b, buf, acc)
     iters = 0
     status = 0
     if acc[ACC_N] < min_points:
         status = 1
     else:
-        last_err = acc[ACC_ENERGY] / acc[ACC_N]
+        last_err = acc[ACC_ENERGY] / acc[ACC_N] + prior_a * alpha * alpha + prior_b * aff_b * aff_b
         lam = 0.0
         done = False
         while iters < max_iter and not done:
             iters += 1
             unpack_normal_equations(acc, H, g)
+            n_pts = acc[ACC_N]
+            if aff_enabled:          # the weak prior pulling alpha and b to 0
+                H[6, 6] += prior_a * n_pts
+                g[6] += prior_a * n_pts * alpha
+                H[7, 7] += prior_b * n_pts
+                g[7] += prior_b * n_pts * aff_b
             hmax = 0.0
             for i in range(6):
                 if H[i, i] > hmax:
@@ -452,21 +487,24 @@ def lm_level(pts, img3, interp, T_init, cam, prm, max_iter, aff_in, buf, T_out, 
             tries = 0
             while True:
                 tries += 1
-                for i in range(6):
-                    for j in range(6):
+                for i in range(n_unk):
+                    for j in range(n_unk):
                         A[i, j] = H[i, j]
                     A[i, i] = H[i, i] * (1.0 + lam)
                     b[i] = -g[i]
-                if not solve6(A, b, inc, solve_eps):
+                if not solve_spd(A, b, inc, n_unk, solve_eps):
                     status = 2
                     done = True
                     break
                 exp_se3_nb(inc, E)
                 _matmul4(E, T, Tn)
-                accumulate(pts, img3, interp, Tn, cam, prm, aff_a, aff_b, buf, acc_new)
+                alpha_n = alpha + inc[6]
+                b_n = aff_b + inc[7]
+                a_n = np.exp(alpha_n)
+                last_n = accumulate(pts, img3, interp, Tn, cam, prm, a_n, b_n, buf, acc_new)
                 n_new = acc_new[ACC_N]
                 if n_new >= min_points:
-                    err = acc_new[ACC_ENERGY] / n_new
+                    err = acc_new[ACC_ENERGY] / n_new + prior_a * alpha_n * alpha_n + prior_b * b_n * b_n
                 else:
                     err = np.inf
                 if err < last_err:
@@ -475,8 +513,9 @@ def lm_level(pts, img3, interp, T_init, cam, prm, max_iter, aff_in, buf, T_out, 
                             T[i, j] = Tn[i, j]
                     for k in range(ACC_SIZE):
                         acc[k] = acc_new[k]
-                    if aff_enabled:
-                        aff_a, aff_b = _affine_from_sums(acc, aff_a, aff_b, aff_min_var)
+                    alpha = alpha_n
+                    aff_a = a_n
+                    aff_b = b_n
                     if err / last_err > conv_ratio:
                         done = True
                     last_err = err
@@ -504,6 +543,7 @@ def lm_level(pts, img3, interp, T_init, cam, prm, max_iter, aff_in, buf, T_out, 
     aff_out[1] = aff_b
     stats[ST_ITER] = iters
     stats[ST_STATUS] = status
+    stats[ST_LAST_N] = last_n
     if status == 1:
         stats[ST_ERR] = np.nan
 
@@ -548,6 +588,7 @@ def warmup() -> None:
     prm[TP_HUBER] = 1.5
     prm[TP_BORDER] = 1.0
     prm[TP_MIN_POINTS] = 6.0
+    prm[TP_SATURATION] = 255.0
     acc = np.empty(ACC_SIZE)
     buf = np.empty((BUF_ROWS, n))
     T_out = np.empty((4, 4))
@@ -558,11 +599,13 @@ def warmup() -> None:
     pts_ro = pts.copy()
     pts_ro.flags.writeable = False
     for p in (pts, pts_ro):
-        accumulate(p, img3, INTERP_BILINEAR, T, cam, prm, 1.0, 0.0, buf, acc)
-        lm_level(p, img3, INTERP_BSPLINE, T, cam, prm, 3, aff, buf, T_out, acc, aff_out, stats)
-    unpack_normal_equations(acc, np.empty((6, 6)), np.empty(6))
-    x = np.zeros(6)
-    solve6(np.eye(6), np.ones(6), x, 1e-12)
+        for enabled in (0.0, 1.0):
+            prm[TP_AFF_ENABLED] = enabled
+            accumulate(p, img3, INTERP_BILINEAR, T, cam, prm, 1.0, 0.0, buf, acc)
+            lm_level(p, img3, INTERP_BSPLINE, T, cam, prm, 3, aff, buf, T_out, acc, aff_out, stats)
+    unpack_normal_equations(acc, np.empty((NP, NP)), np.empty(NP))
+    x = np.zeros(NP)
+    solve_spd(np.eye(NP), np.ones(NP), x, NP, 1e-12)
     E = np.empty((4, 4))
     exp_se3_nb(np.full(6, 0.1), E)
     m = np.ones((4, 4), np.bool_)

@@ -24,8 +24,17 @@ class TrackingConfig:
     max_abs_residual: float = param(15.0, "lost when the finest level's mean |residual| (grey levels) exceeds this (0 = off)",
                                     0.0, 255.0)
     min_inside_ratio: float = param(0.01, "lost when fewer than this share of the level's pixels warp into the image", 0.0, 1.0)
-    affine_brightness: bool = param(False, "estimate an affine brightness change a*I+b per frame")
-    affine_huber: float = param(5.0, "robust threshold (grey levels) for the brightness estimate", 0.1, 255.0)
+    affine_brightness: bool = param(False, "estimate the affine brightness change I_new = a*I_ref + b (a = exp(alpha)) "
+                                    "jointly with the pose (8 unknowns; auto-exposure cameras)")
+    max_gain_change: float = param(2.0, "lost when the estimated gain a (new frame relative to the reference) is above "
+                                   "this or below its inverse (a flat garbage image can be 'explained' by a -> 0)",
+                                   1.0, 100.0)
+    saturation: float = param(250.0, "skip points whose reference or new (smoothed) intensity is at or above this: "
+                              "clipped pixels break the brightness model (256 = off; raise it for photometrically "
+                              "corrected images, which exceed 255)", 0.0, 1e6)
+    affine_prior_a: float = param(1e-2, "weak prior on alpha = log a towards 0: energy per used point prior*alpha^2", 0.0, 1e12)
+    affine_prior_b: float = param(1e-5, "weak prior on the offset b towards 0: energy per used point prior*b^2 "
+                                  "(b in grey levels)", 0.0, 1e12)
     depth_image_min_grad: float = param(5.0, "depth-image tracking: use pixels whose 3x3 max gradient is at least this (0 = all)",
                                         0.0, 255.0)
     depth_image_max_step: float = param(0.08, "depth-image tracking: drop pixels whose neighbourhood depth range exceeds "
@@ -50,4 +59,7 @@ class TrackingConfig:
     min_hessian_diag: float = param(1e-2, "treat the system as singular when max diag(H) per used point is below this "
                                     "(textureless image: no update)", 0.0, 1e6)
     solve_eps: float = param(1e-12, "Cholesky pivot threshold relative to the largest diagonal (singular system)", 0.0, 1.0)
-    affine_min_var: float = param(1.0, "keep the brightness gain a when the weighted reference intensity variance is below this", 0.0, 1e4)
+    noise_sigma_gain: float = param(1.0, "tracking weights use sigma = max(sigma_i, this * the frame's residual noise "
+                                    "estimate) (0 = constant sigma_i)", 0.0, 10.0)
+    noise_smoothing: float = param(0.2, "weight of the newest frame in the exponential smoothing of the noise estimate",
+                                   0.0, 1.0)

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..camera import PinholeIntrinsics
 from ..geometry import inverse_se3, project_to_se3
-from ..image import bspline_coefficient_stack, gaussian_blur, intensity_gradient_stack
+from ..image import bspline_coefficient_stack, gaussian_blur, gaussian_kernel, intensity_gradient_stack
 from . import _kernels as kernels
 from .config import TrackingConfig
 from .reference import TrackingReference
@@ -28,7 +28,12 @@ class TrackingResult:
     (about 1 when residuals match ``sigma_i``); ``good_ratio``: good/(good+bad) (good-residual test
     of ALGORITHM_NOTES); ``inside_ratio``: points that warped inside / the level's pixel count;
     ``points_used``: points that warped inside on the finest level; ``mean_abs_residual``: mean
-    ``|I_new - I_ref|`` there (grey levels); ``lost_reason``: '' or why.
+    ``|I_new - (a I_ref + b)|`` there (grey levels); ``affine``: ``(a, b)`` with
+    ``I_new = a * I_ref + b`` (relative to the reference frame); ``residual_sigma``: robust std
+    (1.4826 MAD) of the finest level's residuals (grey levels at the tracking level);
+    ``noise_sigma``: the image noise that explains it at the mapping resolution (grey levels; the
+    residual std divided by the noise gain of the tracking pyramid, smoothing and both images);
+    ``sigma_i``: the intensity noise std the weights used; ``lost_reason``: '' or why.
     """
     T_ref_new: np.ndarray
     lost: bool
@@ -41,13 +46,17 @@ class TrackingResult:
     affine: tuple = (1.0, 0.0)
     lost_reason: str = ""
     mean_abs_residual: float = float("nan")
+    residual_sigma: float = float("nan")
+    noise_sigma: float = float("nan")
+    sigma_i: float = float("nan")
     total_ms: float = 0.0
 
     def quality(self) -> dict:
         """Scalar quality numbers as a plain dict (for logs and FrameResult.quality)."""
         return {"residual": self.residual, "mean_abs_residual": self.mean_abs_residual, "good_ratio": self.good_ratio, "inside_ratio": self.inside_ratio,
                 "points_used": self.points_used, "lost": self.lost, "lost_reason": self.lost_reason,
-                "affine_a": self.affine[0], "affine_b": self.affine[1], "track_ms": self.total_ms}
+                "affine_a": self.affine[0], "affine_b": self.affine[1], "residual_sigma": self.residual_sigma,
+                "noise_sigma": self.noise_sigma, "track_ms": self.total_ms}
 
 
 def tracking_params(c: TrackingConfig) -> np.ndarray:
@@ -56,7 +65,7 @@ def tracking_params(c: TrackingConfig) -> np.ndarray:
     p = np.zeros(kernels.TP_N, np.float64)
     p[kernels.TP_SIGMA_I2] = c.sigma_i * c.sigma_i
     p[kernels.TP_HUBER] = c.huber
-    p[kernels.TP_AFF_K] = c.affine_huber
+    p[kernels.TP_AFF_PRIOR_A] = c.affine_prior_a
     p[kernels.TP_GOOD_C2] = c.good_residual_const ** 2
     p[kernels.TP_GOOD_G2] = c.good_residual_grad ** 2
     p[kernels.TP_BORDER] = c.border_px
@@ -71,8 +80,17 @@ def tracking_params(c: TrackingConfig) -> np.ndarray:
     p[kernels.TP_SOLVE_EPS] = c.solve_eps
     p[kernels.TP_MIN_HESSIAN_DIAG] = c.min_hessian_diag
     p[kernels.TP_AFF_ENABLED] = 1.0 if c.affine_brightness else 0.0
-    p[kernels.TP_AFF_MIN_VAR] = c.affine_min_var
+    p[kernels.TP_AFF_PRIOR_B] = c.affine_prior_b
+    p[kernels.TP_SATURATION] = c.saturation
     return p
+
+
+def _robust_sigma(r: np.ndarray) -> float:
+    """1.4826 * median absolute deviation of every 4th residual (NaN when there are fewer than 8)."""
+    r = r[::4]
+    if r.size < 8:
+        return float("nan")
+    return float(1.4826 * np.median(np.abs(r - np.median(r))))
 
 
 class Tracker:
@@ -95,6 +113,7 @@ class Tracker:
         self._intr = [intrinsics0.level(l) for l in range(self.pyramid_levels)]
         self._cams = [np.array([k.fx, k.fy, k.cx, k.cy], np.float64) for k in self._intr]
         self._params = tracking_params(config)
+        self._frame_params = self._params.copy()          # per frame: sigma_i may follow the noise
         self._img3 = [None] * self.pyramid_levels
         self._acc = np.zeros(kernels.ACC_SIZE)
         self._T_out = np.empty((4, 4))
@@ -113,10 +132,26 @@ class Tracker:
         d = lvl - self.track_level
         return c.max_iter_finest if d == 0 else c.max_iter_coarse if d == 1 else c.max_iter_coarsest
 
-    def track(self, ref: TrackingReference, image_pyr_new, T_ref_new_guess) -> TrackingResult:
-        """Align ``image_pyr_new`` (float32 pyramid, level 0 = mapping resolution) to ``ref``."""
+    def noise_gain(self, smooth_sigma: float) -> float:
+        """Std of white image noise (mapping resolution) after the tracking pyramid's box averages and
+        the reference's Gaussian smoothing, at the finest tracking level, relative to the input std."""
+        g = 0.5 ** self.track_level
+        if smooth_sigma > 0:
+            g *= float(np.sum(gaussian_kernel(smooth_sigma) ** 2))
+        return g
+
+    def track(self, ref: TrackingReference, image_pyr_new, T_ref_new_guess, affine_guess=(1.0, 0.0),
+              sigma_i: float | None = None) -> TrackingResult:
+        """Align ``image_pyr_new`` (float32 pyramid, level 0 = mapping resolution) to ``ref``.
+
+        ``affine_guess``: starting ``(a, b)`` of ``I_new = a I_ref + b`` (kept fixed when
+        ``affine_brightness`` is off); ``sigma_i``: intensity noise std of the weights for this frame
+        (None: ``config.sigma_i``)."""
         t_start = time.perf_counter()
         c = self.config
+        prm = self._frame_params
+        sig = c.sigma_i if sigma_i is None or not np.isfinite(sigma_i) else max(float(sigma_i), 1e-3)
+        prm[kernels.TP_SIGMA_I2] = sig * sig
         guess = np.asarray(T_ref_new_guess, dtype=np.float64)
         if guess.shape != (4, 4) or not np.all(np.isfinite(guess)):
             raise ValueError("T_ref_new_guess must be a finite 4x4 matrix")
@@ -128,7 +163,9 @@ class Tracker:
         if finest > top:
             raise ValueError(f"pyramids have {n_lvl} levels, tracking needs level {finest}")
         aff = self._aff
-        aff[0], aff[1] = 1.0, 0.0
+        aff[0], aff[1] = float(affine_guess[0]), float(affine_guess[1])
+        if not (np.isfinite(aff[0]) and aff[0] > 0 and np.isfinite(aff[1])):
+            aff[0], aff[1] = 1.0, 0.0
         level_ms: dict = {}
         iterations: dict = {}
         acc = self._acc
@@ -155,7 +192,7 @@ class Tracker:
                 img3 = self._img3[lvl] = bspline_coefficient_stack(img, self._img3[lvl])
             else:
                 img3 = self._img3[lvl] = intensity_gradient_stack(img, self._img3[lvl])
-            kernels.lm_level(lv.points, img3, interp, T, self._cams[lvl], self._params, self._max_iter(lvl), aff,
+            kernels.lm_level(lv.points, img3, interp, T, self._cams[lvl], prm, self._max_iter(lvl), aff,
                              self._buf, self._T_out, acc, self._aff_out, self._stats)
             status = int(self._stats[kernels.ST_STATUS])
             if status != 1 and np.all(np.isfinite(self._T_out)):
@@ -166,11 +203,12 @@ class Tracker:
                 finest_acc = acc.copy()
                 finest_status = status
                 finest_err = float(self._stats[kernels.ST_ERR])
+                finest_sigma = _robust_sigma(self._buf[6, :int(self._stats[kernels.ST_LAST_N])])
             level_ms[lvl] = (time.perf_counter() - t0) * 1e3
 
         lv = ref.levels[finest]
         res = TrackingResult(T_ref_new=guess.copy(), lost=True, level_ms=level_ms, iterations=iterations,
-                             affine=(float(aff[0]), float(aff[1])))
+                             affine=(float(aff[0]), float(aff[1])), sigma_i=sig)
         if finest_acc is None or finest_status == 1:
             res.lost_reason = ("no points (empty map, or reference built with min_level above the tracking level)"
                                if lv.num_points == 0 else "too few points inside the image")
@@ -185,6 +223,8 @@ class Tracker:
         res.good_ratio = float(n_good / max(n_good + n_bad, 1.0))
         res.residual = finest_err
         res.mean_abs_residual = float(finest_acc[kernels.ACC_ABS_R] / max(n_in, 1.0))
+        res.residual_sigma = finest_sigma
+        res.noise_sigma = finest_sigma / (self.noise_gain(ref.smooth_sigma) * float(np.sqrt(1.0 + aff[0] * aff[0])))
         if np.all(np.isfinite(T)):
             res.T_ref_new = inverse_se3(project_to_se3(T))
         if not np.all(np.isfinite(T)):
@@ -195,6 +235,8 @@ class Tracker:
             res.lost_reason = "too few good residuals"
         elif c.max_abs_residual > 0 and not res.mean_abs_residual <= c.max_abs_residual:
             res.lost_reason = "residual too large"
+        elif not 1.0 / c.max_gain_change <= res.affine[0] <= c.max_gain_change:
+            res.lost_reason = "implausible brightness change"
         res.lost = bool(res.lost_reason)
         res.total_ms = (time.perf_counter() - t_start) * 1e3
         return res
