@@ -37,12 +37,20 @@ DEFAULT_FPS = 30.0
 # ------------------------------------------------------------------------------------------------
 
 def _imread_grey(path: Path, camera: Camera) -> np.ndarray:
+    return _imread(path, camera)[0]
+
+
+def _imread(path: Path, camera: Camera) -> tuple[np.ndarray, np.ndarray | None]:
+    """(grey uint8, BGR uint8 colour or None for a grey file) of an image file."""
     import cv2
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         if not path.is_file():
             raise InputError(f"{path}: image not found")
         raise InputError(f"{path}: cannot read image (corrupt or unsupported format)")
+    color = None
+    if img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8:
+        color = img
     if img.ndim == 3:
         if img.shape[2] == 4:
             img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
@@ -55,7 +63,7 @@ def _imread_grey(path: Path, camera: Camera) -> np.ndarray:
     elif img.dtype != np.uint8:
         raise InputError(f"{path}: unsupported image type {img.dtype} (expected 8-bit grey or colour)")
     _check_size(path, img, camera, "image")
-    return img
+    return img, color
 
 
 def _check_size(path, img: np.ndarray, camera: Camera, what: str) -> None:
@@ -151,11 +159,11 @@ class FileSequence(Sequence):
         if not -n <= i < n:
             raise IndexError(f"frame {i} out of range for {n} frames")
         i %= n
-        img = _imread_grey(self.image_paths[i], self.camera)
+        img, color = _imread(self.image_paths[i], self.camera)
         depth = None
         if self.depth_paths is not None and self.depth_paths[i] is not None:
             depth = _imread_depth(self.depth_paths[i], self.camera, self.depth_scale or TUM_DEPTH_SCALE)
-        return Frame(i, float(self.timestamps[i]), img, depth)
+        return Frame(i, float(self.timestamps[i]), img, depth, color)
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):

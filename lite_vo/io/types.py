@@ -15,12 +15,14 @@ class Frame:
     """One frame of a sequence as recorded.
 
     ``image``: uint8 (H, W) grey at the native resolution (distorted, as recorded);
-    ``depth``: float32 (H, W) metres, 0 = invalid, or None when the sequence has no depth for it.
+    ``depth``: float32 (H, W) metres, 0 = invalid, or None when the sequence has no depth for it;
+    ``color``: uint8 (H, W, 3) BGR at the native resolution, or None for grey sources.
     """
     index: int
     timestamp: float
     image: np.ndarray
     depth: Optional[np.ndarray] = None
+    color: Optional[np.ndarray] = None
 
 
 class Trajectory:
