@@ -11,8 +11,8 @@ persistent AR world and, later, relocalisation.
   scale (a new monocular map).
 * **Memory bound**: at most ``max_bytes`` (and ``max_keyframes``). When a new keyframe does not fit,
   keyframes are thinned in this order: those of an older monocular scale (they cannot be fused with the
-  current map), then the most *redundant* one (the smallest pose distance to another keyframe; ties:
-  the oldest). The newest keyframe is never removed, so the store keeps covering the whole scene
+  current map), then the most *redundant* one (the smallest sum of pose distances to its two nearest keyframes;
+  ties: the oldest). The newest keyframe is never removed, so the store keeps covering the whole scene
   rather than only the recent past.
 * **Pose corrections** (two-view bootstrap, relocalisation) replace the moved keyframes by copies with
   the corrected pose (``None`` removes a keyframe).
@@ -102,8 +102,8 @@ def pose_distance(T_a: np.ndarray, T_b: np.ndarray, scene_depth: float) -> float
 class KeyframeStore:
     """Bounded, thread-safe keyframe store (see the module docstring)."""
 
-    def __init__(self, max_bytes: int = 96 * 2**20, max_keyframes: int = 200, min_translation_rel: float = 0.08,
-                 min_rotation_deg: float = 8.0) -> None:
+    def __init__(self, max_bytes: int = 96 * 2**20, max_keyframes: int = 200, min_translation_rel: float = 0.03,
+                 min_rotation_deg: float = 3.0) -> None:
         if max_bytes <= 0 or max_keyframes < 1:
             raise ValueError("KeyframeStore: max_bytes and max_keyframes must be positive")
         self.max_bytes = int(max_bytes)
@@ -205,9 +205,9 @@ class KeyframeStore:
                 return i
         depth = kfs[-1].median_depth if np.isfinite(kfs[-1].median_depth) else 1.0
         best, best_d = 0, np.inf
-        for i in range(len(kfs) - 1):
-            d = min(pose_distance(kfs[i].T_world_cam, kfs[j].T_world_cam, depth)
-                    for j in range(len(kfs)) if j != i)
+        for i in range(len(kfs) - 1):        # redundancy: distance to its two nearest keyframes
+            d = sum(sorted(pose_distance(kfs[i].T_world_cam, kfs[j].T_world_cam, depth)
+                           for j in range(len(kfs)) if j != i)[:2])
             if d < best_d - 1e-12:
                 best, best_d = i, d
         return best
@@ -259,8 +259,8 @@ def _support(kf: Keyframe, p_world: np.ndarray, rel_tol: float, win: int) -> tup
     return seen, agree
 
 
-def scene_cloud(keyframes, max_rel_std: float = 0.05, rel_tol: float = 0.03, neighbours: int = 6,
-                min_support: int = 1, min_agree: float = 0.0, window: int = 1, voxel: float = 0.0) -> PointCloud:
+def scene_cloud(keyframes, max_rel_std: float = 0.1, rel_tol: float = 0.03, neighbours: int = 10,
+                min_support: int = 1, min_agree: float = 0.7, window: int = 1, voxel: float = 0.0) -> PointCloud:
     """All keyframes' converged points in the world frame, coloured from their images.
 
     Outliers are removed twice: by variance (relative depth standard deviation below ``max_rel_std``)
