@@ -30,11 +30,26 @@ WHEELS = (2, 3, 5, 7)     # racecar.urdf joint indices of the driven wheels
 STEERING = (4, 6)         # racecar.urdf joint indices of the steering hinges
 
 
-def _pybullet():
+def import_pybullet():
+    """``(pybullet, pybullet_data)``, imported without pybullet's build-time banner (it prints from C
+    straight to file descriptor 1 on import, which ``--quiet`` and piped JSON output must not see)."""
+    import os
+    import sys
     try:
+        if "pybullet" not in sys.modules:
+            sys.stdout.flush()
+            saved = os.dup(1)
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            try:
+                os.dup2(devnull, 1)
+                import pybullet  # noqa: F401
+            finally:
+                os.dup2(saved, 1)
+                os.close(saved)
+                os.close(devnull)
         import pybullet
         import pybullet_data
-    except ImportError as err:  # pragma: no cover
+    except ImportError as err:
         raise MissingExtraError("the AR demo needs the [ar] extra: pip install 'lite-vo[ar]'") from err
     return pybullet, pybullet_data
 
@@ -45,7 +60,7 @@ _CAR_LENGTH: list[float] = []
 def racecar_length() -> float:
     """Length (physics units) of the pybullet racecar, measured once from its link AABBs."""
     if not _CAR_LENGTH:
-        pb, pbd = _pybullet()
+        pb, pbd = import_pybullet()
         c = pb.connect(pb.DIRECT)
         try:
             pb.setAdditionalSearchPath(pbd.getDataPath(), physicsClientId=c)
@@ -180,7 +195,7 @@ class PhysicsWorld:
     _pb: object = field(default=None, repr=False)
 
     def __post_init__(self):
-        pb, pbd = _pybullet()
+        pb, pbd = import_pybullet()
         self._pb = pb
         self._data = pbd.getDataPath()
         self.client = pb.connect(pb.DIRECT)

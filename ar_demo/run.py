@@ -37,8 +37,8 @@ def sequence_fps(seq, n: int | None = None) -> float:
 def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estimate",
            max_frames: int | None = None, cfg: ARConfig | None = None, panels: bool | None = None,
            overrides=(), trajectory_out: str | Path | None = None, mesh_out: str | Path | None = None,
-           quiet: bool = True, vo_mode: str = "sync", sinks=(), calib=None, car_out: str | Path | None = None,
-           summary_out: str | Path | None = None) -> dict:
+           quiet: bool = True, vo_mode: str = "sync", sinks=(), calib=None, topic: str | None = None,
+           car_out: str | Path | None = None, summary_out: str | Path | None = None) -> dict:
     """Run the AR demo on a sequence and write ``out_video`` (.mp4). Returns a summary dict.
 
     ``poses="estimate"``: the visual odometry with ``profile`` and VO ``overrides``; ``poses="gt"``:
@@ -55,7 +55,7 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
     t_start = time.perf_counter()
     vo_cfg = lite_vo.load_profile(profile, list(overrides) + [f'system.mode="{vo_mode}"'])
     session = Session(sequence_path, vo_cfg, pose_source=poses, max_frames=max_frames, profile_name=profile,
-                      calib=calib)
+                      calib=calib, topic=topic)
     fps = sequence_fps(session.sequence, max_frames)
     out_dir = Path(out_video).parent
     car_out = out_dir / "car.txt" if car_out is None else car_out

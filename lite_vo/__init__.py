@@ -4,6 +4,7 @@ Public API (imported lazily so ``import lite_vo`` stays cheap and compiles no ke
 
 * :func:`open_sequence` - read TUM, EuRoC, image-folder, video and live-camera sequences
 * :func:`load_profile` - a validated :class:`VOConfig` from a shipped profile or TOML file
+* :class:`Session` - the frame driver: a whole sequence through the VO into :class:`OutputSink` objects
 * :class:`VisualOdometry` - ``process(image, timestamp) -> FrameResult``, ``depth_map()``
 
 The core never imports ``ar_demo``, pybullet, trimesh or moderngl.
@@ -22,7 +23,9 @@ _LAZY = {
     "VOConfig": ("lite_vo.config", "VOConfig"),
     "VisualOdometry": ("lite_vo.system", "VisualOdometry"),
     "FrameResult": ("lite_vo.system", "FrameResult"),
-    "OutputSink": ("lite_vo.system", "OutputSink"),
+    "OutputSink": ("lite_vo.session", "OutputSink"),
+    "Session": ("lite_vo.session", "Session"),
+    "PublishedMap": ("lite_vo.system", "PublishedMap"),
     "LiteVOError": ("lite_vo.errors", "LiteVOError"),
 }
 

@@ -7,6 +7,7 @@ Pyramid level l+1 halves fx, fy and maps ``c -> (c + 0.5) / 2 - 0.5`` (2x2 box a
 :class:`Camera` is a calibrated camera as recorded (native size, radial-tangential or FOV
 distortion, thesis ch. 2.1); :meth:`Camera.rectifier` builds a :class:`Rectifier` that turns
 native frames (and depth images) into undistorted pinhole images at the working resolution.
+Fisheye lenses use the equidistant (Kannala-Brandt) model of OpenCV's ``cv2.fisheye`` and Kalibr.
 
 Imports numpy (and cv2 lazily, for the rectifier) only.
 """
@@ -64,7 +65,12 @@ class PinholeIntrinsics:
 # Distortion models and the native (as recorded) camera
 # --------------------------------------------------------------------------------------------
 
-DISTORTION_MODELS = ("none", "radtan", "fov")
+DISTORTION_MODELS = ("none", "radtan", "fov", "equidistant")
+
+#: the rectified pinhole never looks further than this from the optical axis (its corners); only
+#: very wide lenses (fisheyes beyond ~140 degrees diagonal) reach it. A pinhole image of a wider
+#: view spends almost all its pixels on the periphery and becomes useless in the centre.
+MAX_RECTIFIED_HALF_ANGLE_DEG = 70.0
 
 
 def _distort_radtan(x: np.ndarray, y: np.ndarray, k: tuple) -> tuple[np.ndarray, np.ndarray]:
@@ -126,6 +132,47 @@ def _fov_factor_undistort(r_d: np.ndarray, omega: float) -> np.ndarray:
     return np.where(r_d * omega < np.pi / 2, f, np.nan)  # beyond 180 degrees field of view
 
 
+def _equidistant_theta_d(theta: np.ndarray, k: tuple) -> np.ndarray:
+    k1, k2, k3, k4 = k
+    t2 = theta * theta
+    return theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+
+
+def _distort_equidistant(x: np.ndarray, y: np.ndarray, k: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """``cv2.fisheye``'s model: theta = atan(r), r_d = theta (1 + k1 theta^2 + ... + k4 theta^8)."""
+    r = np.hypot(x, y)
+    theta = np.arctan(r)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = _equidistant_theta_d(theta, k) / r
+    s = np.where(r > 1e-12, s, 1.0)
+    return x * s, y * s
+
+
+def _undistort_equidistant(xd: np.ndarray, yd: np.ndarray, k: tuple, iterations: int = 30
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Newton's method on theta; NaN where there is no physical solution: at or beyond 90 degrees
+    from the axis (a pinhole cannot show it) or past the turning point of the polynomial."""
+    k1, k2, k3, k4 = k
+    rd = np.hypot(xd, yd)
+    theta = np.minimum(rd, 1.5)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        for _ in range(iterations):
+            t2 = theta * theta
+            f = _equidistant_theta_d(theta, k) - rd
+            df = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
+            step = f / df
+            theta = theta - step
+            if not (np.abs(step) > 1e-15).any():
+                break
+        t2 = theta * theta
+        df = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
+        bad = ~(np.abs(_equidistant_theta_d(theta, k) - rd) < 1e-9 * (1.0 + rd))
+        bad |= ~(df > 0) | ~(theta >= 0) | ~(theta < np.pi / 2 - 1e-9)
+        s = np.where(rd > 1e-12, np.tan(theta) / rd, 1.0)
+    s = np.where(bad, np.nan, s)
+    return xd * s, yd * s
+
+
 @dataclass(frozen=True)
 class Camera:
     """A calibrated camera at its native resolution, with lens distortion.
@@ -136,7 +183,11 @@ class Camera:
     * ``"none"``: the identity (``params = ()``);
     * ``"radtan"``: OpenCV radial-tangential, ``params = (k1, k2, p1, p2, k3)`` (eq. 2.10, k4..k6 = 0);
     * ``"fov"``: the FOV/ATAN model of Devernay and Faugeras, ``params = (omega,)`` (eq. 2.6-2.9),
-      ``r_d = atan(2 r_u tan(omega / 2)) / omega``; omega in radians.
+      ``r_d = atan(2 r_u tan(omega / 2)) / omega``; omega in radians;
+    * ``"equidistant"``: the fisheye model of ``cv2.fisheye``, Kalibr's ``equidistant`` and ROS
+      (Kannala-Brandt), ``params = (k1, k2, k3, k4)``: ``theta = atan(r_u)``,
+      ``r_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``. With all k = 0 it is
+      still the equidistant projection ``r_d = theta``, not a pinhole.
 
     The pipeline never works on distorted images: :meth:`rectifier` builds remap tables once and
     turns each frame into an undistorted pinhole image at the working resolution.
@@ -157,6 +208,9 @@ class Camera:
         elif self.model == "fov":
             if len(p) != 1 or not (0.0 <= p[0] < np.pi):
                 raise ValueError("fov distortion needs (omega,) with 0 <= omega < pi")
+        elif self.model == "equidistant":
+            if len(p) != 4:
+                raise ValueError("equidistant distortion needs (k1, k2, k3, k4)")
         elif p:
             raise ValueError("model 'none' takes no distortion parameters")
         if not all(np.isfinite(p)):
@@ -181,6 +235,11 @@ class Camera:
         return cls(PinholeIntrinsics(float(fx), float(fy), float(cx), float(cy), int(width), int(height)),
                    "fov", (omega,))
 
+    @classmethod
+    def equidistant(cls, fx, fy, cx, cy, width, height, k1=0.0, k2=0.0, k3=0.0, k4=0.0) -> "Camera":
+        return cls(PinholeIntrinsics(float(fx), float(fy), float(cx), float(cy), int(width), int(height)),
+                   "equidistant", (k1, k2, k3, k4))
+
     # -- properties ---------------------------------------------------------------------------
     @property
     def width(self) -> int:
@@ -194,6 +253,8 @@ class Camera:
     def is_distorted(self) -> bool:
         if self.model == "none":
             return False
+        if self.model == "equidistant":
+            return True            # r_d = theta is not r_u = tan(theta) even without coefficients
         return any(v != 0.0 for v in self.params)
 
     def describe(self) -> str:
@@ -212,6 +273,8 @@ class Camera:
             return xy.copy()
         if self.model == "radtan":
             xd, yd = _distort_radtan(x, y, self.params)
+        elif self.model == "equidistant":
+            xd, yd = _distort_equidistant(x, y, self.params)
         else:
             f = _fov_factor_distort(np.hypot(x, y), self.params[0])
             xd, yd = x * f, y * f
@@ -220,14 +283,17 @@ class Camera:
     def undistort(self, xy_distorted: np.ndarray) -> np.ndarray:
         """Undistorted normalised coordinates (..., 2) of distorted ones (``gamma^-1``).
 
-        Closed form for FOV, Newton iterations for radtan; NaN where there is no (physical)
-        solution (e.g. beyond the turning point of the radial polynomial)."""
+        Closed form for FOV, Newton iterations for radtan and equidistant; NaN where there is no
+        (physical) solution (e.g. beyond the turning point of the radial polynomial, or 90 degrees
+        and more from the optical axis)."""
         xy = np.asarray(xy_distorted, dtype=np.float64)
         x, y = xy[..., 0], xy[..., 1]
         if not self.is_distorted:
             return xy.copy()
         if self.model == "radtan":
             xu, yu = _undistort_radtan(x, y, self.params)
+        elif self.model == "equidistant":
+            xu, yu = _undistort_equidistant(x, y, self.params)
         else:
             f = _fov_factor_undistort(np.hypot(x, y), self.params[0])
             xu, yu = x * f, y * f
@@ -256,7 +322,9 @@ class Camera:
 
 def _valid_normalised_rect(cam: Camera, samples: int = 400) -> tuple[float, float, float, float]:
     """Largest axis-aligned rectangle (x0, x1, y0, y1) of undistorted normalised coordinates
-    whose every point distorts into the native image (pixel-area extent ``[-0.5, W - 0.5]``)."""
+    whose every point distorts into the native image (pixel-area extent ``[-0.5, W - 0.5]``),
+    shrunk about its centre when a corner would look more than ``MAX_RECTIFIED_HALF_ANGLE_DEG``
+    away from the optical axis (fisheye lenses)."""
     i = cam.intrinsics
     W, H = i.width, i.height
     if not cam.is_distorted:
@@ -267,9 +335,16 @@ def _valid_normalised_rect(cam: Camera, samples: int = 400) -> tuple[float, floa
     right = cam.unproject(np.stack([np.full_like(vs, W - 0.5), vs], -1))
     top = cam.unproject(np.stack([us, np.full_like(us, -0.5)], -1))
     bottom = cam.unproject(np.stack([us, np.full_like(us, H - 0.5)], -1))
-    x0, x1 = np.nanmax(left[:, 0]), np.nanmin(right[:, 0])
-    y0, y1 = np.nanmax(top[:, 1]), np.nanmin(bottom[:, 1])
-    if not (np.isfinite([x0, x1, y0, y1]).all() and x1 > x0 and y1 > y0):
+    # border points at 90 degrees or more from the axis (wide fisheyes) lie at infinity: no limit
+    r_max = np.tan(np.radians(MAX_RECTIFIED_HALF_ANGLE_DEG))
+
+    def bound(values, pick, default):
+        v = values[np.isfinite(values)]
+        return float(np.clip(pick(v), -r_max, r_max)) if len(v) else default
+
+    x0, x1 = bound(left[:, 0], np.max, -r_max), bound(right[:, 0], np.min, r_max)
+    y0, y1 = bound(top[:, 1], np.max, -r_max), bound(bottom[:, 1], np.min, r_max)
+    if not (x1 > x0 and y1 > y0):
         raise ValueError(f"camera {cam.describe()}: cannot find an undistorted image region")
     # verify on a grid (edges dense, interior coarse); shrink about the centre until inside
     mx, my = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
@@ -292,6 +367,14 @@ def _valid_normalised_rect(cam: Camera, samples: int = 400) -> tuple[float, floa
         hy *= 0.995
     else:  # pragma: no cover - pathological calibration
         raise ValueError(f"camera {cam.describe()}: cannot find an undistorted image region")
+    # widest useful view: no corner further than MAX_RECTIFIED_HALF_ANGLE_DEG from the axis
+    scale = 1.0
+    for sx, sy in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
+        a = hx * hx + hy * hy                              # |m + s h|^2 = r_max^2, largest root s
+        b = mx * sx * hx + my * sy * hy
+        c = mx * mx + my * my - r_max * r_max
+        scale = min(scale, (-b + np.sqrt(max(b * b - a * c, 0.0))) / a)
+    hx, hy = hx * scale, hy * scale
     return mx - hx, mx + hx, my - hy, my + hy
 
 
@@ -334,7 +417,8 @@ class Rectifier:
     * the output pinhole keeps the native pixel aspect ``fx / fy`` and is chosen so the whole
       output image lies inside the area the native image covers after undistortion: there is
       **no black or undefined border** (a little of the field of view near the corners or edges
-      is given up instead; undistorted cameras lose nothing but the crop);
+      is given up instead; undistorted cameras lose nothing but the crop); for fisheye lenses the
+      view is also limited to ``MAX_RECTIFIED_HALF_ANGLE_DEG`` from the axis at the corners;
     * images are remapped (bilinear, ``cv2.remap`` with tables built once) to ``k`` times the output
       size, where ``k ~ native fx / output fx``, then box-averaged by ``k`` (``cv2.INTER_AREA``)
       to avoid aliasing when downsampling. When that remap is the identity it is skipped.

@@ -15,3 +15,12 @@ class InputError(LiteVOError):
 
 class MissingExtraError(LiteVOError):
     """An optional dependency (e.g. the ``[ar]`` extra) is not installed."""
+
+
+class Interrupted(BaseException):
+    """Raised in the main thread by the SIGTERM handler the CLI installs (SIGINT is KeyboardInterrupt);
+    like KeyboardInterrupt it is no Exception, so nothing on the way catches it by accident."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(f"signal {signum}")
+        self.signum = signum

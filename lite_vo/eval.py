@@ -230,3 +230,82 @@ def evaluate(gt: Trajectory, est: Trajectory, align: str = "sim3", delta_s: floa
         rpe_trans_mean_cm_per_s=rpe_t_mean, rpe_rot_mean_deg_per_s=rpe_r_mean, align=align,
         delta_s=float(delta_s), max_dt=float(max_dt), estimated_poses=len(est), gt_poses=len(gt),
         T_gt_est=S, ate_errors_m=err, warnings=warnings)
+
+
+@dataclass
+class PoseErrors:
+    """Per matched pose after the alignment of an :class:`EvalResult` (for plots):
+    ``timestamps`` (N,), ``gt_xyz`` and ``est_xyz`` (N, 3) camera centres (estimate aligned),
+    ``trans_err_m`` (N,) and ``rot_err_deg`` (N,) (angle of ``R_gt^T R_align R_est``)."""
+    timestamps: np.ndarray
+    gt_xyz: np.ndarray
+    est_xyz: np.ndarray
+    trans_err_m: np.ndarray
+    rot_err_deg: np.ndarray
+
+
+def pose_errors(gt: Trajectory, est: Trajectory, result: EvalResult) -> PoseErrors:
+    """Absolute translation and rotation error of each matched pose under ``result``'s alignment
+    (the same association as :func:`evaluate`)."""
+    i_est, i_gt = associate(est.timestamps, gt.timestamps, result.max_dt)
+    S = np.asarray(result.T_gt_est)
+    R_align = S[:3, :3] / result.scale
+    G, E = gt.poses[i_gt], est.poses[i_est]
+    est_xyz = E[:, :3, 3] @ S[:3, :3].T + S[:3, 3]
+    rot = np.degrees(_rot_angle(np.swapaxes(G[:, :3, :3], -1, -2) @ (R_align @ E[:, :3, :3])))
+    return PoseErrors(est.timestamps[i_est], G[:, :3, 3], est_xyz,
+                      np.linalg.norm(G[:, :3, 3] - est_xyz, axis=1), rot)
+
+
+# ----------------------------------------------------------------------------------------------
+# Relative drift over a window (thesis Fig. 5.8; the initialisation study of lite_vo.profiling)
+# ----------------------------------------------------------------------------------------------
+
+def window_pairs(t: np.ndarray, window_s: float = 0.5,
+                 window_frames: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs ``(k, j)`` of increasing timestamps ``t``: j is ``window_frames`` poses before k,
+    or (without ``window_frames``) the pose whose time is closest to ``t_k - window_s``; pairs whose
+    window reaches back before ``t_0`` are left out."""
+    t = np.asarray(t, dtype=np.float64)
+    k = np.arange(len(t))
+    if window_frames is not None:
+        k = k[k >= window_frames]
+        return k, k - window_frames
+    if len(t) < 2:
+        return k[:0], k[:0]
+    target = t - window_s
+    j = np.clip(np.searchsorted(t, target), 1, len(t) - 1)
+    j = np.where(np.abs(t[j - 1] - target) <= np.abs(t[j] - target), j - 1, j)
+    ok = (target >= t[0] - 1e-9) & (j != k)
+    return k[ok], j[ok]
+
+
+def relative_drift(gt: Trajectory, est: Trajectory, scale: float = 1.0, window_s: float = 0.5,
+                   window_frames: int | None = None, min_motion_m: float = 1e-3,
+                   max_dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Relative translational drift over a window, per estimated pose (thesis Fig. 5.8).
+
+    For each matched estimated pose k and the pose j one window earlier (:func:`window_pairs`:
+    ``window_s`` seconds, or ``window_frames`` poses), the error is
+    ``|scale * t(E_j^-1 E_k) - t(G_j^-1 G_k)| / |t(G_j^-1 G_k)|``. Poses are matched within
+    ``max_dt`` (default: half the median frame interval, at least 0.02 s). Returns (time since the
+    first matched pose, error); pairs whose ground-truth motion is below ``min_motion_m`` are
+    skipped (no meaningful relative error).
+    """
+    empty = (np.zeros(0), np.zeros(0))
+    if len(est) < 2 or len(gt) < 2:
+        return empty
+    if max_dt is None:
+        max_dt = max(0.02, 0.5 * float(np.median(np.diff(est.timestamps))))
+    i_est, i_gt = associate(est.timestamps, gt.timestamps, max_dt)
+    if len(i_est) < 2:
+        return empty
+    t = est.timestamps[i_est]
+    k, j = window_pairs(t, window_s, window_frames)
+    E, G = est.poses[i_est], gt.poses[i_gt]
+    rel_e = (np.linalg.inv(E[j]) @ E[k])[:, :3, 3]
+    rel_g = (np.linalg.inv(G[j]) @ G[k])[:, :3, 3]
+    motion = np.linalg.norm(rel_g, axis=1)
+    keep = motion >= min_motion_m
+    err = np.linalg.norm(scale * rel_e[keep] - rel_g[keep], axis=1) / motion[keep]
+    return (t[k] - t[0])[keep], err

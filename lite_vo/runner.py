@@ -13,9 +13,10 @@ from pathlib import Path
 from .config import VOConfig
 from .io import prepare_output_dir
 from .session import Session
-from .sinks import MapSink, ProgressSink, RunInfoSink, TrajectorySink
+from .sinks import MapSink, ProgressSink, RunInfoSink, TrajectoryExportSink, TrajectorySink
 
-RUN_OUTPUTS = ("trajectory.txt", "timing.json", "run.json", "map.ply", "depth_accuracy.json", "depth_error.png")
+RUN_OUTPUTS = ("trajectory.txt", "timing.json", "run.json", "map.ply", "depth_accuracy.json", "depth_error.png",
+               "trajectory_kitti.txt", "times.txt", "trajectory.png")
 
 
 @dataclass
@@ -32,15 +33,19 @@ class RunResult:
 def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, force: bool = False,
                  depth_source: str = "filter", pose_source: str = "estimate", max_frames: int | None = None,
                  start_frame: int = 0, quiet: bool = True, sinks=(), profile_name: str | None = None,
-                 max_bad_frames: int = 10, calib=None) -> RunResult:
+                 max_bad_frames: int = 10, calib=None, kitti: bool = False, plot: bool = False) -> RunResult:
     """Run the visual odometry over ``sequence`` (a path, camera index or opened sequence).
 
     Writes the contract files into ``out_dir`` (when given) as the run goes; ``sinks`` are further
     :class:`~lite_vo.session.OutputSink` objects. ``pose_source="gt"`` takes the poses from the
     ground truth (mapping only); ``depth_source="images"`` tracks against the depth images
-    (tracking only). Ctrl-C, SIGTERM and errors still finish the files (status ``interrupted at
+    (tracking only). ``kitti``: also ``trajectory_kitti.txt`` (+ ``times.txt``); ``plot``: also
+    ``trajectory.png`` (against the ground truth when the sequence has it). Ctrl-C, SIGTERM and errors still finish the files (status ``interrupted at
     frame N`` or ``failed: ...``) and are then re-raised.
     """
+    if plot:
+        from .plots import require_matplotlib
+        require_matplotlib()                  # before the run, not after it
     session = Session(sequence, config, depth_source=depth_source, pose_source=pose_source,
                       start_frame=start_frame, max_frames=max_frames, max_bad_frames=max_bad_frames,
                       profile_name=profile_name, calib=calib)
@@ -49,7 +54,12 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
     if out_dir is not None:  # only once the input is known to be usable
         out = prepare_output_dir(Path(out_dir), force, clean=RUN_OUTPUTS)
         run_info = RunInfoSink(out)
-        own = [TrajectorySink(out / "trajectory.txt"), run_info, MapSink(out / "map.ply")]
+        trajectory = TrajectorySink(out / "trajectory.txt")
+        own = [trajectory, run_info, MapSink(out / "map.ply")]
+        if kitti or plot:
+            own.append(TrajectoryExportSink(trajectory, out / "trajectory_kitti.txt" if kitti else None,
+                                            out / "trajectory.png" if plot else None,
+                                            session.sequence.groundtruth))
     if not quiet:
         own.append(ProgressSink())
     session.sinks = own + list(sinks)

@@ -31,8 +31,9 @@ import numpy as np
 
 from .camera import PinholeIntrinsics
 from .config import VOConfig
-from .errors import InputError, LiteVOError
+from .errors import InputError, Interrupted, LiteVOError
 from .io import open_sequence
+from .progress import announce_if_slow
 from .system import FrameResult, PublishedMap, VisualOdometry
 from .warmup import CORE_KERNEL_MODULES, warmup
 
@@ -123,14 +124,6 @@ class SessionResult:
         return self.end.status
 
 
-class Interrupted(BaseException):
-    """Raised in the main thread by the SIGTERM handler the CLI installs (SIGINT is KeyboardInterrupt)."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(f"signal {signum}")
-        self.signum = signum
-
-
 # ----------------------------------------------------------------------------------------------
 # The driver
 # ----------------------------------------------------------------------------------------------
@@ -138,16 +131,18 @@ class Interrupted(BaseException):
 class Session:
     """Drives one run: ``Session(source, config, sinks=[...]).run() -> SessionResult``.
 
-    ``source``: a sequence path, camera index, or an opened sequence. ``pose_source="gt"`` takes
+    ``source``: a sequence path, camera index, or an opened sequence (``calib``: a calibration file
+    overriding the source's own; ``topic``: the image topic of a ROS bag). ``pose_source="gt"`` takes
     the poses from the sequence's ground truth (mapping only); ``depth_source="images"`` tracks
     every frame against the previous depth image (tracking only). Unreadable frames are skipped
     with a warning; more than ``max_bad_frames`` in a row end the run with an error.
+    ``warm_up_kernels=False`` leaves the numba compile (cold cache) in the first frames.
     """
 
     def __init__(self, source, config: VOConfig, sinks: Iterable[OutputSink] = (), *,
                  depth_source: str = "filter", pose_source: str = "estimate", start_frame: int = 0,
                  max_frames: int | None = None, max_bad_frames: int = 10, profile_name: str | None = None,
-                 calib=None) -> None:
+                 calib=None, topic: str | None = None, warm_up_kernels: bool = True) -> None:
         if pose_source not in ("estimate", "gt"):
             raise InputError(f"pose source must be 'estimate' or 'gt', not {pose_source!r}")
         if start_frame < 0:
@@ -158,7 +153,7 @@ class Session:
             raise InputError(f"--max-bad-frames must be >= 0, got {max_bad_frames}")
         seq = source
         if isinstance(source, (str, Path, int)):
-            seq = open_sequence(source) if calib is None else open_sequence(source, calib=calib)
+            seq = open_sequence(source, calib=calib, topic=topic)
         self.sequence = seq
         self.config = config
         self.sinks = list(sinks)
@@ -183,6 +178,7 @@ class Session:
             total = min(total, max_frames)
         self.frames_total = total
         self.profile_name = profile_name or config.name
+        self.warm_up_kernels = warm_up_kernels
         self._full_rectifier = None
 
     # ------------------------------------------------------------------ helpers
@@ -216,7 +212,10 @@ class Session:
         """Process every frame; sinks see everything. Re-raises Ctrl-C, SIGTERM and errors after
         ``on_finish`` was called with the matching status."""
         t_warm = time.perf_counter()
-        warmup(CORE_KERNEL_MODULES)        # compile/load kernels before the clock starts
+        if self.warm_up_kernels:           # compile/load kernels before the clock starts
+            with announce_if_slow("compiling the numba kernels (the first run on this machine takes about a "
+                                  "minute; `lite-vo warmup` does it once after installing) ..."):
+                warmup(CORE_KERNEL_MODULES)
         warmup_s = time.perf_counter() - t_warm
         seq, cfg = self.sequence, self.config
         vo = VisualOdometry(seq.camera, cfg, depth_source=self.depth_source,

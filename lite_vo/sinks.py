@@ -6,6 +6,8 @@
 * :class:`RunInfoSink`: ``run.json`` (written at the start with status ``running``, again at the end
   with the final status), ``timing.json``, and the depth accuracy files when the sequence has depth;
 * :class:`MapSink`: ``map.ply``, the whole-scene coloured point cloud of the keyframes;
+* :class:`TrajectoryExportSink`: at the end, the trajectory in KITTI format and/or as a picture
+  (against the ground truth when there is one);
 * :class:`ProgressSink`: a progress bar on a terminal (tqdm), a plain line every few seconds when
   the output is piped.
 
@@ -17,14 +19,14 @@ import json
 import logging
 import os
 import platform
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 from .geometry import tum_from_pose
 from .io import Trajectory, write_file_atomic, write_ply, write_trajectory
+from .io.trajectory import write_trajectory_kitti
+from .progress import Progress
 from .session import FrameEvent, OutputSink, PublishedMap, RunEnd, SessionInfo
 
 log = logging.getLogger(__name__)
@@ -236,45 +238,53 @@ class MapSink(OutputSink):
         write_ply(self.path, pts, idepth_var=var, colors=colors)
 
 
-class ProgressSink(OutputSink):
-    """Progress: a tqdm bar on a terminal; one plain line every ``every_s`` seconds when piped."""
+class TrajectoryExportSink(OutputSink):
+    """At the end of a run: ``trajectory_kitti.txt`` (+ ``times.txt``) and/or ``trajectory.png``
+    from the poses of a :class:`TrajectorySink`. A picture that cannot be drawn (too few poses, no
+    matplotlib) is a warning, never a failed run."""
 
-    def __init__(self, stream=None, every_s: float = 5.0) -> None:
-        self.stream = stream or sys.stderr
-        self.every_s = every_s
-        self._bar = None
-        self._total = None
-        self._done = self._lost = 0
-        self._t0 = self._last = 0.0
+    def __init__(self, trajectory: TrajectorySink, kitti_path=None, plot_path=None, groundtruth=None) -> None:
+        self.source = trajectory
+        self.kitti_path = Path(kitti_path) if kitti_path else None
+        self.plot_path = Path(plot_path) if plot_path else None
+        self.groundtruth = groundtruth
         self._name = ""
 
     def on_start(self, info: SessionInfo) -> None:
-        self._total, self._name = info.frames_total, info.name
-        self._t0 = self._last = time.monotonic()
-        if self.stream.isatty():
-            from tqdm import tqdm
-            self._bar = tqdm(total=info.frames_total, desc=info.name, unit="frame", file=self.stream,
-                             dynamic_ncols=True, leave=True)
-
-    def on_frame(self, event: FrameEvent) -> None:
-        self._done += 1
-        self._lost += int(event.result.lost)
-        if self._bar is not None:
-            self._bar.update(1)
-            if event.result.lost or self._done % 10 == 0:
-                self._bar.set_postfix(lost=self._lost, refresh=False)
-            return
-        now = time.monotonic()
-        if now - self._last >= self.every_s:
-            self._last = now
-            total = f"/{self._total}" if self._total else ""
-            fps = self._done / max(now - self._t0, 1e-9)
-            print(f"{self._name}: frame {self._done}{total}, {fps:.1f} fps, {self._lost} lost",
-                  file=self.stream, flush=True)
+        self._name = info.name
 
     def on_finish(self, end: RunEnd) -> None:
-        if self._bar is not None:
-            self._bar.close()
+        from .errors import LiteVOError
+        traj = self.source.trajectory()
+        if self.kitti_path is not None:
+            write_trajectory_kitti(self.kitti_path, traj)
+        if self.plot_path is not None:
+            from .plots import plot_trajectory
+            try:
+                plot_trajectory(self.groundtruth, traj, self.plot_path, name=self._name)
+            except LiteVOError as err:
+                log.warning("no trajectory picture: %s", err)
+
+
+class ProgressSink(OutputSink):
+    """Frames processed: a tqdm bar on a terminal, a plain line every few seconds when piped."""
+
+    def __init__(self, stream=None, every_s: float = 5.0) -> None:
+        self.stream, self.every_s = stream, every_s
+        self._progress: Progress | None = None
+        self._lost = 0
+
+    def on_start(self, info: SessionInfo) -> None:
+        self._progress = Progress(info.frames_total, info.name, stream=self.stream, every_s=self.every_s)
+
+    def on_frame(self, event: FrameEvent) -> None:
+        lost = bool(event.result.lost)
+        self._lost += lost
+        self._progress.update(1, note=f"{self._lost} lost" if lost or self._progress.done % 10 == 9 else None)
+
+    def on_finish(self, end: RunEnd) -> None:
+        if self._progress is not None:
+            self._progress.close()
 
 
 def _json_default(o):

@@ -10,7 +10,7 @@ import math
 import naive_tracking
 import numpy as np
 
-from lite_vo.mapping import _kernels as K
+from lite_vo.mapping import _kernels as kernels
 
 
 def bilinear(img, x, y):
@@ -34,13 +34,13 @@ def gradients(img):
 def epipolar_direction(cur, x, y, px, py, c, fx, fy, cx, cy, prm):
     ep = np.array([-fx * c[0] + c[2] * (px - cx), -fy * c[1] + c[2] * (py - cy)])
     n2 = float(ep @ ep)
-    if not n2 >= prm[K.P_MIN_EPL_LENGTH] ** 2:
+    if not n2 >= prm[kernels.P_MIN_EPL_LENGTH] ** 2:
         return False, 0.0, 0.0
     g = np.array([float(cur[y, x + 1]) - float(cur[y, x - 1]), float(cur[y + 1, x]) - float(cur[y - 1, x])])
     along2 = float(g @ ep) ** 2 / n2
-    if not along2 >= prm[K.P_MIN_EPL_GRAD_SQ]:
+    if not along2 >= prm[kernels.P_MIN_EPL_GRAD_SQ]:
         return False, 0.0, 0.0
-    if not along2 >= prm[K.P_MIN_EPL_ANGLE_COS] ** 2 * float(g @ g):
+    if not along2 >= prm[kernels.P_MIN_EPL_ANGLE_COS] ** 2 * float(g @ g):
         return False, 0.0, 0.0
     e = ep / math.sqrt(n2)
     return True, e[0], e[1]
@@ -55,36 +55,36 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     t = np.asarray(t, float)
     rescale = a[2] + prior_id * t[2]
     fail = lambda code, length=0.0, err=0.0: (code, 0.0, 0.0, length, err)  # noqa: E731
-    if not (prm[K.P_MIN_SCALE] < rescale < prm[K.P_MAX_SCALE]):
-        return fail(K.OUT_OF_IMAGE)
+    if not (prm[kernels.P_MIN_SCALE] < rescale < prm[kernels.P_MAX_SCALE]):
+        return fail(kernels.OUT_OF_IMAGE)
     if a[2] + max_id * t[2] < 0.001:
         max_id = (0.001 - a[2]) / t[2]
     if a[2] + min_id * t[2] < 0.001 or max_id < min_id:
-        return fail(K.OUT_OF_IMAGE)
+        return fail(kernels.OUT_OF_IMAGE)
 
     def proj(d):
         p = Kmat @ (a + d * t)
         return p[:2] / p[2]
     far, close = proj(min_id), proj(max_id)
     if not np.all(np.isfinite(np.concatenate([far, close]))):
-        return fail(K.NUMERIC)
+        return fail(kernels.NUMERIC)
     length = float(np.linalg.norm(close - far))
     if not (length > 0) or not math.isfinite(length):
-        return fail(K.NUMERIC)
+        return fail(kernels.NUMERIC)
     inc = (close - far) / length
-    if length > prm[K.P_MAX_EPL]:
+    if length > prm[kernels.P_MAX_EPL]:
         if not allow_long:
-            return fail(K.TOO_LONG, length)
-        close = far + inc * prm[K.P_MAX_EPL]
+            return fail(kernels.TOO_LONG, length)
+        close = far + inc * prm[kernels.P_MAX_EPL]
     far = far - inc
     close = close + inc
-    if length < prm[K.P_MIN_EPL]:
-        pad = 0.5 * (prm[K.P_MIN_EPL] - length)
+    if length < prm[kernels.P_MIN_EPL]:
+        pad = 0.5 * (prm[kernels.P_MIN_EPL] - length)
         far, close = far - pad * inc, close + pad * inc
-    b = prm[K.P_BORDER_SAMPLES]
+    b = prm[kernels.P_BORDER_SAMPLES]
     inside = lambda p: b < p[0] < w - b and b < p[1] < h - b  # noqa: E731
     if not inside(far):
-        return fail(K.OUT_OF_IMAGE)
+        return fail(kernels.OUT_OF_IMAGE)
     if not inside(close):
         # move the near end back along the line until it is inside (x first, then y)
         if close[0] <= b:
@@ -95,15 +95,15 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
             close = close + (b - close[1]) / inc[1] * inc
         elif close[1] >= h - b:
             close = close + (h - b - close[1]) / inc[1] * inc
-        if not inside(close) or not np.linalg.norm(close - far) >= prm[K.P_MIN_CLIPPED_EPL]:
-            return fail(K.OUT_OF_IMAGE)
+        if not inside(close) or not np.linalg.norm(close - far) >= prm[kernels.P_MIN_CLIPPED_EPL]:
+            return fail(kernels.OUT_OF_IMAGE)
     # the five samples in the current image (checked after the line geometry)
     ep = np.array([epxn, epyn]) * rescale
     offs = np.arange(-2, 3)
     cur_pts = np.array([u, v]) + offs[:, None] * ep
     if not (np.all(cur_pts[[0, -1], 0] > 0) and np.all(cur_pts[[0, -1], 0] < w - 2)
             and np.all(cur_pts[[0, -1], 1] > 0) and np.all(cur_pts[[0, -1], 1] < h - 2)):
-        return fail(K.OUT_OF_IMAGE)
+        return fail(kernels.OUT_OF_IMAGE)
     cvals = np.array([bilinear(cur, x, y) for x, y in cur_pts])
     n = int(np.linalg.norm(close - far) + 1e-6) + 1
     n = min(n, scratch_len - 4)
@@ -114,12 +114,12 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     best = int(np.argmin(ssd))
     far_ones = [ssd[k] for k in range(n) if abs(k - best) >= 2]
     second = min(far_ones) if far_ones else 1e50
-    if not ssd[best] <= 4 * prm[K.P_SSD_MAX]:
-        return fail(K.NO_MATCH, length, ssd[best])
-    if prm[K.P_AMBIGUITY] * ssd[best] > second:
-        return fail(K.BAD_MATCH, length, ssd[best])
+    if not ssd[best] <= 4 * prm[kernels.P_SSD_MAX]:
+        return fail(kernels.NO_MATCH, length, ssd[best])
+    if prm[kernels.P_AMBIGUITY] * ssd[best] > second:
+        return fail(kernels.BAD_MATCH, length, ssd[best])
     pos, err, sub = float(best), ssd[best], False
-    if prm[K.P_SUBPIXEL] > 0.5:
+    if prm[kernels.P_SUBPIXEL] > 0.5:
         cands = []
         for side in (-1, 1):
             j = best + side
@@ -135,8 +135,8 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
             err, pos = min(cands)
             sub = True
     grad_along = float(np.sum(np.diff(cvals) ** 2))
-    if err > prm[K.P_SSD_MAX] + math.sqrt(grad_along) * prm[K.P_SSD_GRAD_FACTOR]:
-        return fail(K.NO_MATCH, length, err)
+    if err > prm[kernels.P_SSD_MAX] + math.sqrt(grad_along) * prm[kernels.P_SSD_GRAD_FACTOR]:
+        return fail(kernels.NO_MATCH, length, err)
     match = far + pos * inc
     # inverse depth whose projection is the match (solve along the larger line component)
     if inc[0] ** 2 > inc[1] ** 2:
@@ -150,16 +150,16 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
         didpix = (a[2] * t[1] - a[1] * t[2]) / (yn * t[2] - t[1]) ** 2 / fy
         alpha = inc[1] * didpix
     if not idepth >= 0 or not math.isfinite(alpha):
-        return fail(K.BAD_MATCH, length, err)
-    photo = 4 * prm[K.P_SIGMA_I2] / (grad_along + 1e-10)
-    e = prm[K.P_GEO_BASE] * (1 + track_residual)
+        return fail(kernels.BAD_MATCH, length, err)
+    photo = 4 * prm[kernels.P_SIGMA_I2] / (grad_along + 1e-10)
+    e = prm[kernels.P_GEO_BASE] * (1 + track_residual)
     gl = gxi * epxn + gyi * epyn + 1e-10
     geo = e * e * (gxi ** 2 + gyi ** 2) / gl ** 2
-    c = prm[K.P_SUBPIX_VAR] if sub else prm[K.P_NOSUBPIX_VAR]
+    c = prm[kernels.P_SUBPIX_VAR] if sub else prm[kernels.P_NOSUBPIX_VAR]
     var = alpha ** 2 * (c + geo + photo)
     if not (var > 0 and math.isfinite(var)):
-        return K.NUMERIC, 0.0, 0.0, length, err
-    return K.OK, idepth, var, length, err
+        return kernels.NUMERIC, 0.0, 0.0, length, err
+    return kernels.OK, idepth, var, length, err
 
 
 def line_length(u, v, min_id, max_id, R, t, fx, fy, cx, cy):
@@ -185,11 +185,11 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
         for x in range(3, w - 3):
             has = st["valid"][y, x] != 0
             g = maxgrad[y, x]
-            if has and g < prm[K.P_MIN_GRAD]:
+            if has and g < prm[kernels.P_MIN_GRAD]:
                 st["valid"][y, x] = 0
                 status[y, x] = 6
                 continue
-            if g < prm[K.P_MIN_GRAD] or st["blacklist"][y, x] < prm[K.P_MIN_BLACKLIST]:
+            if g < prm[kernels.P_MIN_GRAD] or st["blacklist"][y, x] < prm[kernels.P_MIN_BLACKLIST]:
                 continue
             if stride > 1 and (y * w + x) % stride != offset:
                 continue
@@ -203,74 +203,74 @@ def observe(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, 
                 px, py = float(st["pos_x"][y, x]), float(st["pos_y"][y, x])
                 prior = float(st["idepth_s"][y, x])
                 sd = math.sqrt(float(st["var_s"][y, x]))
-                lo = max(prior - prm[K.P_SEARCH_SIGMAS] * sd, 0.0)
-                hi = min(prior + prm[K.P_SEARCH_SIGMAS] * sd, prm[K.P_MAX_IDEPTH])
+                lo = max(prior - prm[kernels.P_SEARCH_SIGMAS] * sd, 0.0)
+                hi = min(prior + prm[kernels.P_SEARCH_SIGMAS] * sd, prm[kernels.P_MAX_IDEPTH])
                 older = [i for i in range(nref) if ref_ids[i] >= st["ref_id"][y, x]]
                 b = older[0] if older else nref - 1
             else:
-                px, py, prior, lo, hi = float(x), float(y), prm[K.P_CREATE_PRIOR], 0.0, prm[K.P_MAX_IDEPTH]
+                px, py, prior, lo, hi = float(x), float(y), prm[kernels.P_CREATE_PRIOR], 0.0, prm[kernels.P_MAX_IDEPTH]
                 # oldest reference such that it and every newer one has a full-range line <= max_epl
                 b = nref - 1
-                while b > 0 and line_length(px, py, lo, hi, ref_R[b - 1], ref_t[b - 1], fx, fy, cx, cy) <= prm[K.P_MAX_EPL]:
+                while b > 0 and line_length(px, py, lo, hi, ref_R[b - 1], ref_t[b - 1], fx, fy, cx, cy) <= prm[kernels.P_MAX_EPL]:
                     b -= 1
-            code, used, r_len = K.OUT_OF_IMAGE, b, 0.0
+            code, used, r_len = kernels.OUT_OF_IMAGE, b, 0.0
             while b < nref:
                 ok, ex, ey = epipolar_direction(cur, x, y, px, py, ref_c[b], fx, fy, cx, cy, prm)
                 if not ok:
-                    code = K.NO_EPL
+                    code = kernels.NO_EPL
                     break
                 code, r_id, r_var, r_len, _ = line_stereo(
                     cur, ref_images[ref_slots[b]], px, py, ex, ey, lo, prior, hi, ref_R[b], ref_t[b],
                     fx, fy, cx, cy, bilinear(gx, px, py), bilinear(gy, px, py), ref_residual[b], prm,
                     b == nref - 1, scratch_len)
                 used = b
-                if code in (K.OUT_OF_IMAGE, K.TOO_LONG):
+                if code in (kernels.OUT_OF_IMAGE, kernels.TOO_LONG):
                     b += 1
                     continue
                 break
-            if code == K.NO_EPL:
+            if code == kernels.NO_EPL:
                 status[y, x] = 7
                 continue
-            if code in (K.OUT_OF_IMAGE, K.TOO_LONG, K.NUMERIC):
+            if code in (kernels.OUT_OF_IMAGE, kernels.TOO_LONG, kernels.NUMERIC):
                 status[y, x] = 5
                 continue
             if has:
                 st["ref_id"][y, x] = max(st["ref_id"][y, x], ref_ids[used])
             if not has:
-                if code == K.OK and r_var <= prm[K.P_MAX_VAR]:
+                if code == kernels.OK and r_var <= prm[kernels.P_MAX_VAR]:
                     for k, val in (("idepth", r_id), ("idepth_var", r_var), ("idepth_s", r_id), ("var_s", r_var),
-                                   ("valid", 1), ("validity", prm[K.P_OBSERVE_VALIDITY]), ("pos_x", px),
+                                   ("valid", 1), ("validity", prm[kernels.P_OBSERVE_VALIDITY]), ("pos_x", px),
                                    ("pos_y", py), ("ref_id", ref_ids[used]), ("blacklist", 0), ("skip", 0)):
                         st[k][y, x] = val
                     status[y, x] = 2
-                elif code in (K.BAD_MATCH, K.NO_MATCH):
+                elif code in (kernels.BAD_MATCH, kernels.NO_MATCH):
                     st["blacklist"][y, x] -= 1
                     status[y, x] = 4
                 continue
-            if code in (K.BAD_MATCH, K.NO_MATCH):
-                st["validity"][y, x] = max(st["validity"][y, x] - prm[K.P_VALIDITY_DEC], 0.0)
+            if code in (kernels.BAD_MATCH, kernels.NO_MATCH):
+                st["validity"][y, x] = max(st["validity"][y, x] - prm[kernels.P_VALIDITY_DEC], 0.0)
                 st["ref_id"][y, x] = ref_ids[used] + 1
-                if code == K.BAD_MATCH:
-                    st["idepth_var"][y, x] *= prm[K.P_FAIL_VAR_INC]
-                    if st["idepth_var"][y, x] > prm[K.P_MAX_VAR]:
+                if code == kernels.BAD_MATCH:
+                    st["idepth_var"][y, x] *= prm[kernels.P_FAIL_VAR_INC]
+                    if st["idepth_var"][y, x] > prm[kernels.P_MAX_VAR]:
                         st["valid"][y, x] = 0
                         st["blacklist"][y, x] -= 1
                 status[y, x] = 4
                 continue
-            if prm[K.P_DIFF_FAC_OBSERVE] * (r_id - prior) ** 2 > r_var + st["var_s"][y, x]:
-                st["idepth_var"][y, x] *= prm[K.P_FAIL_VAR_INC]
-                if st["idepth_var"][y, x] > prm[K.P_MAX_VAR]:
+            if prm[kernels.P_DIFF_FAC_OBSERVE] * (r_id - prior) ** 2 > r_var + st["var_s"][y, x]:
+                st["idepth_var"][y, x] *= prm[kernels.P_FAIL_VAR_INC]
+                if st["idepth_var"][y, x] > prm[kernels.P_MAX_VAR]:
                     st["valid"][y, x] = 0
                 status[y, x] = 3
                 continue
-            pvar = float(st["idepth_var"][y, x]) * prm[K.P_PRED_NOISE]
+            pvar = float(st["idepth_var"][y, x]) * prm[kernels.P_PRED_NOISE]
             # product of the two Gaussians (eq. 3.13)
             st["idepth"][y, x] = (pvar * r_id + r_var * float(st["idepth"][y, x])) / (pvar + r_var)
             st["idepth_var"][y, x] = min(pvar * r_var / (pvar + r_var), float(st["idepth_var"][y, x]))
-            vmax = prm[K.P_VALIDITY_MAX] + g * prm[K.P_VALIDITY_MAX_GRAD] / 255.0
-            st["validity"][y, x] = min(st["validity"][y, x] + prm[K.P_VALIDITY_INC], vmax)
-            if r_len < prm[K.P_MIN_EPL]:
-                st["skip"][y, x] = int(prm[K.P_SKIP_CONVERGED])
+            vmax = prm[kernels.P_VALIDITY_MAX] + g * prm[kernels.P_VALIDITY_MAX_GRAD] / 255.0
+            st["validity"][y, x] = min(st["validity"][y, x] + prm[kernels.P_VALIDITY_INC], vmax)
+            if r_len < prm[kernels.P_MIN_EPL]:
+                st["skip"][y, x] = int(prm[kernels.P_SKIP_CONVERGED])
             status[y, x] = 1
     return status
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from lite_vo.camera import PinholeIntrinsics
-from lite_vo.tracking import _kernels as K
+from lite_vo.tracking import _kernels as kernels
 
 
 # ----------------------------------------------------------------------------- image
@@ -64,9 +64,12 @@ def bspline_sample(coef, u, v):
     return w(ty) @ patch @ w(tx), w(ty) @ patch @ dw(tx), dw(ty) @ patch @ w(tx)
 
 
-def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
-               good_c2, good_g2, border, min_z):
+def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b):
     """Twin of ``_kernels.accumulate``; returns the accumulator vector (``ACC_*`` layout)."""
+    fx, fy, cx, cy = cam
+    sigma_i2, huber_k, aff_k = prm[kernels.TP_SIGMA_I2], prm[kernels.TP_HUBER], prm[kernels.TP_AFF_K]
+    good_c2, good_g2 = prm[kernels.TP_GOOD_C2], prm[kernels.TP_GOOD_G2]
+    border, min_z = prm[kernels.TP_BORDER], prm[kernels.TP_MIN_Z]
     pts = np.asarray(pts, np.float64)
     img3 = np.asarray(img3, np.float64)
     h, w = img3.shape[:2]
@@ -77,11 +80,11 @@ def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, a
         u = fx * q[:, 0] / q[:, 2] + cx
         v = fy * q[:, 1] / q[:, 2] + cy
     ok &= (u >= border) & (u < w - 1 - border) & (v >= border) & (v < h - 1 - border)
-    acc = np.zeros(K.ACC_SIZE)
+    acc = np.zeros(kernels.ACC_SIZE)
     Hm = np.zeros((6, 6))
     g = np.zeros(6)
     for i in np.nonzero(ok)[0]:
-        if interp == K.INTERP_BSPLINE:
+        if interp == kernels.INTERP_BSPLINE:
             i_new, gx, gy = bspline_sample(img3[:, :, 0], u[i], v[i])
         else:
             x0, y0 = int(np.floor(u[i])), int(np.floor(v[i]))
@@ -108,20 +111,19 @@ def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, a
         rn = abs(r) * np.sqrt(wp)
         wh = 1.0 if rn <= huber_k else huber_k / rn
         wgt = wp * wh
-        acc[K.ACC_ENERGY] += rn ** 2 if rn <= huber_k else 2 * huber_k * rn - huber_k ** 2
+        acc[kernels.ACC_ENERGY] += rn ** 2 if rn <= huber_k else 2 * huber_k * rn - huber_k ** 2
         Hm += wgt * np.outer(J, J)
         g += wgt * J * r
-        acc[K.ACC_WR2] += wgt * r * r
-        acc[K.ACC_N] += 1
+        acc[kernels.ACC_N] += 1
         if r * r / (good_c2 + good_g2 * (gx * gx + gy * gy)) < 1:
-            acc[K.ACC_GOOD] += 1
+            acc[kernels.ACC_GOOD] += 1
         else:
-            acc[K.ACC_BAD] += 1
-        acc[K.ACC_ABS_R] += abs(r)
+            acc[kernels.ACC_BAD] += 1
+        acc[kernels.ACC_ABS_R] += abs(r)
         wa = 1.0 if abs(r) <= aff_k else aff_k / abs(r)
-        acc[K.ACC_AFF:K.ACC_AFF + 5] += wa * np.array([1, pts[i, 3], i_new, pts[i, 3] ** 2, pts[i, 3] * i_new])
-    acc[K.ACC_H:K.ACC_H + 21] = Hm[np.triu_indices(6)]
-    acc[K.ACC_G:K.ACC_G + 6] = g
+        acc[kernels.ACC_AFF:kernels.ACC_AFF + 5] += wa * np.array([1, pts[i, 3], i_new, pts[i, 3] ** 2, pts[i, 3] * i_new])
+    acc[kernels.ACC_H:kernels.ACC_H + 21] = Hm[np.triu_indices(6)]
+    acc[kernels.ACC_G:kernels.ACC_G + 6] = g
     return acc
 
 

@@ -1,4 +1,5 @@
-"""Camera models (radtan, FOV), rectification (remap + resize + crop), depth resampling, levels."""
+"""Camera models (radtan, FOV, equidistant fisheye), rectification (remap + resize + crop), depth
+resampling, levels."""
 from __future__ import annotations
 
 import cv2
@@ -13,6 +14,10 @@ EUROC = Camera.radtan(458.654, 457.296, 367.215, 248.375, 752, 480, -0.28340811,
                       1.76187114e-05)
 FOV = Camera.fov(300.0, 300.0, 319.5, 239.5, 640, 480, 0.9)
 KITTI = Camera.pinhole(707.0912, 707.0912, 601.8873, 183.1104, 1226, 370)
+# a fisheye that fills a 640x480 image (about 100 degrees horizontally)
+FISHEYE = Camera.equidistant(370.0, 371.0, 322.5, 236.0, 640, 480, -0.0139, 0.0451, -0.0412, 0.0077)
+# a T265-like wide fisheye (163 degrees): its border lies beyond 90 degrees from the axis
+WIDE = Camera.equidistant(285.0, 286.0, 424.0, 400.0, 848, 800, -0.0073, 0.042, -0.040, 0.0077)
 
 
 def _grid(cam: Camera, step: int = 16) -> np.ndarray:
@@ -20,7 +25,7 @@ def _grid(cam: Camera, step: int = 16) -> np.ndarray:
     return np.stack([u.ravel(), v.ravel()], -1)
 
 
-@pytest.mark.parametrize("cam", [FR1, EUROC, FOV], ids=["fr1", "euroc", "fov"])
+@pytest.mark.parametrize("cam", [FR1, EUROC, FOV, FISHEYE], ids=["fr1", "euroc", "fov", "fisheye"])
 def test_distortion_round_trip_over_the_image(cam):
     uv = _grid(cam)
     xy = cam.unproject(uv)            # undistorted normalised
@@ -40,6 +45,41 @@ def test_radtan_matches_opencv_projection(cam):
     i = cam.intrinsics
     ref, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), i.K, np.array(cam.params))
     np.testing.assert_allclose(cam.project(pts), ref.reshape(-1, 2), atol=1e-6)
+
+
+@pytest.mark.parametrize("cam", [FISHEYE, WIDE], ids=["fisheye", "wide"])
+def test_equidistant_matches_cv2_fisheye(cam):
+    rng = np.random.default_rng(5)
+    # directions up to 80 degrees off the axis, at several depths
+    theta = rng.uniform(0, np.radians(80), 400)
+    phi = rng.uniform(-np.pi, np.pi, 400)
+    rays = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
+    pts = rays * rng.uniform(0.5, 5.0, (400, 1))
+    K, D = cam.intrinsics.K, np.array(cam.params)
+    ref, _ = cv2.fisheye.projectPoints(pts.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, D)
+    uv = cam.project(pts)
+    np.testing.assert_allclose(uv, ref.reshape(-1, 2), atol=1e-8)
+    # unprojection: the ray (x, y, 1) of each pixel, as cv2.fisheye.undistortPoints, to 1e-9
+    xy = cam.unproject(uv)
+    np.testing.assert_allclose(xy, pts[:, :2] / pts[:, 2:], rtol=1e-9, atol=1e-9)
+    ref_xy = cv2.fisheye.undistortPoints(uv.reshape(-1, 1, 2), K, D).reshape(-1, 2)
+    np.testing.assert_allclose(xy, ref_xy, rtol=1e-6, atol=1e-6)
+    # with all k = 0 it is still the equidistant projection r = f * theta, not a pinhole
+    plain = Camera.equidistant(100.0, 100.0, 0.0, 0.0, 10, 10)
+    assert plain.is_distorted
+    np.testing.assert_allclose(plain.project(np.array([[1.0, 0.0, 1.0]]))[0, 0], 100.0 * np.pi / 4, atol=1e-12)
+
+
+def test_equidistant_beyond_90_degrees_is_nan():
+    # the wide lens sees past 90 degrees at its left border: such pixels have no undistorted
+    # (pinhole) coordinates; pixels nearer the centre do
+    assert np.isnan(WIDE.unproject(np.array([[0.0, 400.0]]))).all()
+    assert np.isfinite(WIDE.unproject(np.array([[100.0, 400.0]]))).all()
+    r90 = WIDE.distort(np.array([[1e9, 0.0]]))[0, 0]          # 90 degrees, as a distorted radius
+    assert np.isfinite(WIDE.undistort(np.array([[r90 * 0.99, 0.0]]))).all()
+    assert np.isnan(WIDE.undistort(np.array([[r90 * 1.01, 0.0]]))).all()
+    with pytest.raises(ValueError, match="equidistant distortion needs"):
+        Camera(PinholeIntrinsics(1, 1, 0, 0, 4, 4), "equidistant", (0.1, 0.2, 0.3))
 
 
 def test_fov_model_known_values():
@@ -88,8 +128,9 @@ def _pattern(x: np.ndarray, y: np.ndarray, period: float = 0.12) -> np.ndarray:
     return 127.5 + 110.0 * np.tanh(2.0 * np.sin(a * x) * np.sin(a * y))
 
 
-def _render_distorted(cam: Camera, supersample: int = 2) -> np.ndarray:
-    """Native image of the pattern seen through the distorted camera (pixel-area averaged)."""
+def _render_native(cam: Camera, intensity, supersample: int = 2) -> np.ndarray:
+    """Native image of ``intensity(x, y)`` (normalised undistorted coordinates) seen through the
+    distorted camera, pixel-area averaged over ``supersample`` x ``supersample`` samples."""
     s = supersample
     off = (np.arange(s) + 0.5) / s - 0.5
     acc = np.zeros((cam.height, cam.width))
@@ -97,8 +138,13 @@ def _render_distorted(cam: Camera, supersample: int = 2) -> np.ndarray:
     for du in off:
         for dv in off:
             xy = cam.unproject(np.stack([u + du, v + dv], -1))
-            acc += _pattern(xy[..., 0], xy[..., 1])
+            acc += intensity(xy[..., 0], xy[..., 1])
     return acc / (s * s)
+
+
+def _render_distorted(cam: Camera, supersample: int = 2) -> np.ndarray:
+    """Native image of the pattern seen through the distorted camera (pixel-area averaged)."""
+    return _render_native(cam, _pattern, supersample)
 
 
 def _render_pinhole(k: PinholeIntrinsics, period: float = 0.12) -> np.ndarray:
@@ -106,7 +152,7 @@ def _render_pinhole(k: PinholeIntrinsics, period: float = 0.12) -> np.ndarray:
     return _pattern((u - k.cx) / k.fx, (v - k.cy) / k.fy, period)
 
 
-@pytest.mark.parametrize("cam", [FR1, EUROC, FOV], ids=["fr1", "euroc", "fov"])
+@pytest.mark.parametrize("cam", [FR1, EUROC, FOV, FISHEYE], ids=["fr1", "euroc", "fov", "fisheye"])
 def test_rectified_checkerboard_matches_ideal_pinhole(cam):
     img = np.clip(np.rint(_render_distorted(cam)), 0, 255).astype(np.uint8)
     rect = cam.rectifier(320, multiple_of=16)
@@ -122,7 +168,8 @@ def test_rectified_checkerboard_matches_ideal_pinhole(cam):
     assert np.mean(np.abs(naive - ideal)) > 5 * np.mean(err)
 
 
-@pytest.mark.parametrize("cam", [FR1, EUROC, FOV, KITTI], ids=["fr1", "euroc", "fov", "kitti"])
+@pytest.mark.parametrize("cam", [FR1, EUROC, FOV, KITTI, FISHEYE, WIDE],
+                         ids=["fr1", "euroc", "fov", "kitti", "fisheye", "wide"])
 def test_rectified_image_has_no_undefined_border(cam):
     rect = cam.rectifier(320)
     # every output pixel samples inside the native image: a bright image with a dark frame
@@ -136,6 +183,65 @@ def test_rectified_image_has_no_undefined_border(cam):
     mx, my = rect._source_coords(rect.intrinsics)
     assert mx.min() > -0.5 - 1e-6 and mx.max() < cam.width - 0.5 + 1e-6
     assert my.min() > -0.5 - 1e-6 and my.max() < cam.height - 0.5 + 1e-6
+
+
+def _line_image(cam: Camera, line: tuple, width: float = 0.004, supersample: int = 2) -> np.ndarray:
+    """Native image of a dark straight 3D line on a bright background: the line projects to
+    ``a x + b y + c = 0`` in undistorted normalised coordinates (a pinhole sees it straight)."""
+    a, b, c = line
+
+    def intensity(x, y):
+        dist = np.abs(a * x + b * y + c) / np.hypot(a, b)
+        return 230.0 - 200.0 * np.exp(-0.5 * (dist / width) ** 2)
+    return np.clip(np.rint(_render_native(cam, intensity, supersample)), 0, 255).astype(np.uint8)
+
+
+def _line_centres(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per column, the darkness-weighted row of the line (columns where it is clearly present)."""
+    dark = np.clip(img.max() - img.astype(np.float64) - 20.0, 0, None)
+    w = dark.sum(0)
+    cols = np.nonzero(w > 0.5 * np.median(w[w > 0]))[0]
+    rows = (dark[:, cols] * np.arange(img.shape[0])[:, None]).sum(0) / w[cols]
+    return cols.astype(float), rows
+
+
+def _straightness(cols, rows) -> float:
+    fit = np.polyval(np.polyfit(cols, rows, 1), cols)
+    return float(np.abs(rows - fit).max())
+
+
+@pytest.mark.parametrize("line", [(0.25, 1.0, -0.45), (-0.1, 1.0, 0.3)])
+def test_fisheye_straight_line_is_straight_after_rectification(line):
+    cam = FISHEYE
+    img = _line_image(cam, line)
+    c0, r0 = _line_centres(img)
+    assert _straightness(c0, r0) > 8.0          # through the fisheye the line is clearly bent
+    rect = cam.rectifier(320)
+    out = rect(img)
+    k = rect.intrinsics
+    cols, rows = _line_centres(out[2:-2, 2:-2])
+    cols, rows = cols + 2, rows + 2
+    assert len(cols) > 0.9 * (k.width - 4)      # it crosses the whole rectified image
+    assert _straightness(cols, rows) < 0.3      # and is straight there (sub-pixel)
+    # where the geometry says: a x + b y + c = 0 with x = (u - cx) / fx
+    a, b, c = line
+    expect = k.cy - k.fy * (a * (cols - k.cx) / k.fx + c) / b
+    assert np.abs(rows - expect).max() < 0.3
+
+
+def test_wide_fisheye_rectified_view_is_capped():
+    from lite_vo.camera import MAX_RECTIFIED_HALF_ANGLE_DEG
+    for cam, lo in ((WIDE, MAX_RECTIFIED_HALF_ANGLE_DEG - 3), (FISHEYE, 45.0)):
+        k = cam.rectifier(320).intrinsics
+        corner = np.degrees(np.arctan(np.hypot((k.width / 2) / k.fx, (k.height / 2) / k.fy)))
+        assert lo < corner <= MAX_RECTIFIED_HALF_ANGLE_DEG + 1e-6, (cam.describe(), corner)
+    # the FISHEYE's view is limited by its image edges (widest without a border), not by the cap:
+    # with the native 4:3 aspect kept, the top and bottom edges are reached
+    k = FISHEYE.rectifier(320, multiple_of=1).intrinsics
+    i = FISHEYE.intrinsics
+    y_top, y_bottom = FISHEYE.unproject(np.array([[i.cx, -0.5], [i.cx, i.height - 0.5]]))[:, 1]
+    assert (-0.5 - k.cy) / k.fy == pytest.approx(y_top, rel=0.02)
+    assert (k.height - 0.5 - k.cy) / k.fy == pytest.approx(y_bottom, rel=0.02)
 
 
 def test_pinhole_without_distortion_is_a_plain_area_resize():

@@ -88,3 +88,17 @@ def test_rejected_input_leaves_previous_results_alone(synth_small, tmp_path, cap
     fresh = tmp_path / "fresh"
     assert main(["run", str(synth_small), "--out", str(fresh), "--start-frame", "1000", "--quiet"]) == 1
     assert not fresh.exists()
+
+
+def test_run_writes_kitti_and_a_picture_on_request(synth_small, tmp_path):
+    from lite_vo.io.trajectory import read_pose_file
+    out = tmp_path / "out"
+    assert main(["run", str(synth_small), "--out", str(out), "--max-frames", "16", "--quiet", "--init", "depth",
+                 "--format", "kitti", "--plot"]) == 0
+    tum = read_trajectory(out / "trajectory.txt")
+    kitti = read_pose_file(out / "trajectory_kitti.txt")          # times.txt beside it pairs the lines
+    np.testing.assert_allclose(kitti.timestamps, tum.timestamps, atol=1e-6)
+    np.testing.assert_allclose(kitti.poses, tum.poses, atol=1e-6)
+    import cv2
+    img = cv2.imread(str(out / "trajectory.png"))
+    assert img is not None and img.shape[:2] == (1000, 1500) and img.std() > 5

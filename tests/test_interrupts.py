@@ -104,3 +104,42 @@ def test_an_error_after_some_frames_still_writes_the_files(synth_small, tmp_path
     assert info["status"] == "failed: the sink gave up" and info["error"] == "the sink gave up"
     assert len(read_trajectory(out / "trajectory.txt")) == 12
     assert json.loads((out / "timing.json").read_text())["tracking"]["count"] == 12
+
+
+def _copy_with_bad_frames(src: Path, dst: Path, bad: dict[int, str]) -> list[str]:
+    """A copy of a TUM folder where frame k is truncated ("truncate") or deleted ("delete")."""
+    import shutil
+    shutil.copytree(src, dst)
+    rows = [r.split() for r in (dst / "rgb.txt").read_text().splitlines() if r and not r.startswith("#")]
+    names = []
+    for k, how in bad.items():
+        f = dst / rows[k][1]
+        names.append(f.name)
+        if how == "truncate":
+            f.write_bytes(f.read_bytes()[:200])
+        else:
+            f.unlink()
+    return names
+
+
+def test_unreadable_frames_are_skipped_counted_and_left_out(synth_small, tmp_path, caplog):
+    seq = _copy_with_bad_frames(synth_small, tmp_path / "seq", {10: "truncate", 11: "delete", 30: "truncate"})
+    out = tmp_path / "out"
+    res = run_sequence(tmp_path / "seq", lite_vo.load_profile("phone", ['system.init="depth"']), out)
+    assert res.status == "ok_with_skipped_frames"
+    info = json.loads((out / "run.json").read_text())
+    assert info["frames"]["skipped"] == 3 and info["frames"]["in"] == 42 and info["frames"]["tracked"] == 42
+    assert len(read_trajectory(out / "trajectory.txt")) == 42
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert all(any(name in w for w in warned) for name in seq), warned
+
+
+def test_too_many_bad_frames_in_a_row_stop_the_run_naming_the_last_file(synth_small, tmp_path):
+    names = _copy_with_bad_frames(synth_small, tmp_path / "seq", {k: "truncate" for k in range(5, 9)})
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match=f"4 unreadable frames in a row.*{names[-1]}"):
+        run_sequence(tmp_path / "seq", lite_vo.load_profile("phone", ['system.init="depth"']), out,
+                     max_bad_frames=3)
+    info = json.loads((out / "run.json").read_text())
+    assert info["status"].startswith("failed: 4 unreadable frames in a row")
+    assert len(read_trajectory(out / "trajectory.txt")) == 5            # what came before is kept

@@ -8,7 +8,7 @@ from data_helpers import write_euroc_folder
 from lite_vo.errors import InputError
 from lite_vo.geometry import exp_so3, make_pose
 from lite_vo.io import EurocSequence, open_sequence
-from lite_vo.io.calib import parse_simple_yaml
+from lite_vo.io.calib_formats import load_yaml
 
 T_BS = make_pose(exp_so3(np.array([0.3, -0.2, 1.2])), np.array([0.05, -0.02, 0.01]))
 
@@ -44,15 +44,19 @@ def test_euroc_imu_and_groundtruth_in_camera_frame(tmp_path):
     np.testing.assert_allclose(np.diff(gt.timestamps), 0.025, atol=1e-6)
 
 
-def test_simple_yaml_parser(tmp_path):
+def test_opencv_style_yaml_read_with_pyyaml(tmp_path):
+    # EuRoC's sensor.yaml starts with OpenCV's "%YAML:1.0", which is not valid YAML: it is skipped
     p = tmp_path / "s.yaml"
     p.write_text("%YAML:1.0\n# comment\nname: 'cam # not a comment'\nrate_hz: 20\n"
                  "T_BS:\n  cols: 4\n  rows: 4\n  data: [1, 0, 0, 0,\n    0, 1, 0, 0,   # trailing\n"
                  "    0, 0, 1, 0, 0, 0, 0, 1]\nresolution: [752, 480]\nempty_list: []\n")
-    d = parse_simple_yaml(p)
+    d = load_yaml(p)
     assert d["name"] == "cam # not a comment" and d["rate_hz"] == 20
     assert d["T_BS"]["rows"] == 4 and len(d["T_BS"]["data"]) == 16
     assert d["resolution"] == [752, 480] and d["empty_list"] == []
+    p.write_text("%YAML:1.0\nresolution: [752, 480\nrate_hz: 20\n")
+    with pytest.raises(InputError, match=r"s.yaml line \d+: not valid YAML"):
+        load_yaml(p)
 
 
 def _err(path) -> str:
@@ -69,12 +73,16 @@ def test_euroc_missing_sensor_yaml(tmp_path):
     assert "sensor.yaml" in msg and "camera calibration not found" in msg
 
 
-def test_euroc_unsupported_distortion_model(tmp_path):
+def test_euroc_distortion_models(tmp_path):
     folder = write_euroc_folder(tmp_path)
     y = folder / "mav0" / "cam0" / "sensor.yaml"
-    y.write_text(y.read_text().replace("radial-tangential", "equidistant"))
+    text = y.read_text()
+    y.write_text(text.replace("radial-tangential", "equidistant"))     # fisheye rigs: 4 coefficients
+    cam = open_sequence(folder).camera
+    assert cam.model == "equidistant" and cam.params == (-0.1, 0.01, 0.0, 0.0)
+    y.write_text(text.replace("radial-tangential", "double-sphere"))
     msg = _err(folder)
-    assert "sensor.yaml" in msg and "'equidistant' is not supported" in msg
+    assert "sensor.yaml" in msg and "distortion_model 'double-sphere' is not supported" in msg
 
 
 def test_euroc_bad_intrinsics(tmp_path):
@@ -82,7 +90,7 @@ def test_euroc_bad_intrinsics(tmp_path):
     y = folder / "mav0" / "cam0" / "sensor.yaml"
     y.write_text(y.read_text().replace("intrinsics: [50.0, 50.0,", "intrinsics: [50.0,"))
     msg = _err(folder)
-    assert "sensor.yaml" in msg and "'intrinsics' must be a list of 4 numbers" in msg
+    assert "sensor.yaml" in msg and "intrinsics must have 4 values, got 3" in msg
 
 
 def test_euroc_malformed_csv_line(tmp_path):

@@ -79,3 +79,47 @@ def test_live_camera_errors(tmp_path):
     c = write_calib(tmp_path / "c.txt", 64, 48)
     with pytest.raises(InputError, match=r"camera 97: cannot open"):
         open_sequence(97, calib=c)
+
+
+def test_video_frame_that_does_not_decode_is_a_bad_frame(tmp_path):
+    video = write_video(tmp_path / "clip.avi", n=6, fps=10.0)
+    if video is None:
+        pytest.skip("this OpenCV build cannot write MJPG videos")
+    data = bytearray(video.read_bytes())
+    starts = [i for i in range(len(data) - 3) if data[i:i + 3] == b"\xff\xd8\xff"]   # one JPEG per frame
+    assert len(starts) == 6
+    data[starts[2]:starts[2] + 400] = bytes(400)                # wipe frame 2's JPEG header
+    video.write_bytes(data)
+    write_calib(tmp_path / "calib.txt", 64, 48)
+    frames = list(open_sequence(video))
+    assert [f.index for f in frames] == list(range(6))         # the iteration goes past the bad frame
+    assert [f.error is not None for f in frames] == [False, False, True, False, False, False]
+    assert frames[2].image is None and "clip.avi: video frame 2 cannot be decoded" in frames[2].error
+    np.testing.assert_allclose([f.timestamp for f in frames], np.arange(6) / 10.0)
+
+
+def test_colour_video_and_image_folder_give_colour_frames(tmp_path):
+    import cv2
+    video = write_video(tmp_path / "clip.avi", n=2, fps=10.0)
+    if video is None:
+        pytest.skip("this OpenCV build cannot write MJPG videos")
+    write_calib(tmp_path / "calib.txt", 64, 48)
+    f = next(iter(open_sequence(video)))
+    cap = cv2.VideoCapture(str(video))
+    ok, first = cap.read()
+    cap.release()
+    if np.array_equal(first[..., 0], first[..., 1]) and np.array_equal(first[..., 0], first[..., 2]):
+        assert f.color is None                                  # a grey video decodes as equal BGR planes
+    else:
+        np.testing.assert_array_equal(f.color, first)
+        np.testing.assert_array_equal(f.image, cv2.cvtColor(first, cv2.COLOR_BGR2GRAY))
+    # a grey video (equal BGR planes) has no colour image
+    grey_video = tmp_path / "grey.avi"
+    w = cv2.VideoWriter(str(grey_video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
+    for k in range(2):
+        w.write(cv2.cvtColor(np.full((48, 64), 60 * k + 40, np.uint8), cv2.COLOR_GRAY2BGR))
+    w.release()
+    g = next(iter(open_sequence(grey_video, calib=tmp_path / "calib.txt")))
+    assert g.color is None and g.image.shape == (48, 64)
+    folder = write_image_folder(tmp_path, n=2)                  # colour PNGs
+    assert next(iter(open_sequence(folder))).color.shape == (48, 64, 3)

@@ -155,11 +155,28 @@ def test_missing_calibration(tmp_path):
     assert "no calib.txt" in msg and "seq" in msg
 
 
+def _bad_frames(seq) -> dict:
+    """{index: error} of the bad frames of a whole iteration (which must reach the last frame)."""
+    frames = list(seq)
+    assert [f.index for f in frames] == list(range(len(seq)))
+    for f in frames:
+        assert (f.image is None) == (f.error is not None) and (f.error is None or "\n" not in f.error)
+        assert f.error is None or (f.depth is None and f.color is None)
+    return {f.index: f.error for f in frames if f.error is not None}
+
+
 def test_rgb_list_references_missing_image(tmp_path):
     folder = write_tum_folder(tmp_path, n=3)
     (folder / "rgb.txt").write_text((folder / "rgb.txt").read_text() + "200.0 rgb/missing.png\n")
+    seq = open_sequence(folder)              # a missing file is a bad frame, not fatal
+    assert len(seq) == 4
+    bad = _bad_frames(seq)
+    assert list(bad) == [3]
+    assert "missing.png: image not found" in bad[3] and "listed in rgb.txt line 6" in bad[3]
+    # every listed file missing: nothing to read at all -> error when opening
+    (folder / "rgb.txt").write_text("1.0 rgb/a.png\n2.0 rgb/b.png\n")
     msg = _err(folder)
-    assert "rgb.txt line 6" in msg and "rgb/missing.png does not exist" in msg
+    assert "rgb.txt" in msg and "none of the 2 listed files exists" in msg
 
 
 def test_malformed_line_names_line_number(tmp_path):
@@ -205,36 +222,58 @@ def test_malformed_accelerometer(tmp_path):
 
 def test_image_of_wrong_size(tmp_path):
     folder = write_tum_folder(tmp_path, n=3, width=64, height=48)
-    write_calib(folder / "calib.txt", 640, 480)
-    msg = _err(folder)
-    assert ".png" in msg and "is 64x48 but the calibration says 640x480" in msg
-    # only a later frame is wrong: found lazily while iterating
-    folder2 = write_tum_folder(tmp_path, n=3, width=64, height=48, name="late")
+    write_calib(folder / "calib.txt", 640, 480, cx=320, cy=240)
+    msg = _err(folder)                       # the first frame: a wrong calibration, fatal at open
+    assert ".png" in msg and "is 64x48 but the calibration says 640x480" in msg and "calib.txt" in msg
+    # only a later frame is wrong: a bad frame, the iteration goes on
+    folder2 = write_tum_folder(tmp_path, n=4, width=64, height=48, name="late")
     p = sorted((folder2 / "rgb").iterdir())[2]
     cv2.imwrite(str(p), textured_image(32, 24))
-    seq = open_sequence(folder2)
-    it = iter(seq)
-    next(it), next(it)
-    with pytest.raises(InputError, match="is 32x24 but the calibration says 64x48"):
-        next(it)
+    bad = _bad_frames(open_sequence(folder2))
+    assert list(bad) == [2] and p.name in bad[2] and "is 32x24 but the calibration says 64x48" in bad[2]
 
 
-def test_unreadable_image(tmp_path):
-    folder = write_tum_folder(tmp_path, n=3)
-    p = sorted((folder / "rgb").iterdir())[1]
-    p.write_bytes(b"this is not a png")
-    seq = open_sequence(folder)      # frame 0 is fine
-    with pytest.raises(InputError) as ei:
-        list(seq)
-    assert p.name in str(ei.value) and "cannot read image" in str(ei.value)
+def test_unreadable_and_truncated_images_are_bad_frames(tmp_path):
+    folder = write_tum_folder(tmp_path, n=5)
+    files = sorted((folder / "rgb").iterdir())
+    files[1].write_bytes(b"this is not a png")
+    files[3].write_bytes(files[3].read_bytes()[:60])           # truncated PNG
+    seq = open_sequence(folder)
+    bad = _bad_frames(seq)
+    assert sorted(bad) == [1, 3]
+    assert files[1].name in bad[1] and "cannot read image" in bad[1]
+    assert files[3].name in bad[3] and "cannot read image" in bad[3]
+    assert seq.frame(1).error == bad[1] and seq.frame(2).error is None     # random access agrees
+    # the first frame unreadable: the sequence still opens on the next readable one
+    files[0].write_bytes(b"")
+    assert 0 in _bad_frames(open_sequence(folder))
+    for f in files:
+        f.write_bytes(b"junk")
+    msg = _err(folder)
+    assert "none of the first 5 images can be read" in msg and "cannot read image" in msg
 
 
 def test_unreadable_depth_image(tmp_path):
-    folder = write_tum_folder(tmp_path, n=2)
-    p = sorted((folder / "depth").iterdir())[0]
+    folder = write_tum_folder(tmp_path, n=3)
+    p = sorted((folder / "depth").iterdir())[1]
     cv2.imwrite(str(p), textured_image(64, 48, colour=True))   # 8-bit colour, not a depth image
-    msg = _err(folder)
-    assert p.name in msg and "depth image must be single-channel 16-bit" in msg
+    bad = _bad_frames(open_sequence(folder))
+    assert list(bad) == [1] and p.name in bad[1] and "depth image must be single-channel 16-bit" in bad[1]
+    p.unlink()                                                  # listed in depth.txt but missing
+    bad = _bad_frames(open_sequence(folder))
+    assert list(bad) == [1] and p.name in bad[1] and "depth image not found" in bad[1]
+
+
+def test_colour_frames_keep_the_decoded_colour_image(tmp_path):
+    folder = write_tum_folder(tmp_path, n=2, colour=True)
+    f = open_sequence(folder).frame(0)
+    colour = cv2.imread(str(sorted((folder / "rgb").iterdir())[0]), cv2.IMREAD_COLOR)
+    assert f.color is not None and f.color.dtype == np.uint8 and f.color.shape == (48, 64, 3)
+    np.testing.assert_array_equal(f.color, colour)
+    np.testing.assert_array_equal(f.image, cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY))
+    grey = write_tum_folder(tmp_path, n=2, colour=False, name="grey")
+    g = open_sequence(grey).frame(0)
+    assert g.color is None and g.image.shape == (48, 64)
 
 
 @pytest.mark.parametrize("text, expect", [

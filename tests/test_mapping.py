@@ -13,8 +13,9 @@ from lite_vo.camera import PinholeIntrinsics
 from lite_vo.errors import InputError
 from lite_vo.geometry import exp_se3
 from lite_vo.mapping import MapFrame, Mapper, MappingConfig, depth_accuracy, image_gradients
-from lite_vo.mapping import _kernels as K
-from lite_vo.mapping.depth_map import stereo_params
+from lite_vo.mapping import _kernels as kernels
+from lite_vo.mapping._kernels import MapState, RefFrames
+from lite_vo.mapping.mapper import mapping_params
 
 K_SMALL = PinholeIntrinsics(60.0, 60.0, 31.5, 23.5, 64, 48)
 K_MAP = PinholeIntrinsics(131.25, 131.25, 79.5, 59.5, 160, 120)
@@ -24,6 +25,15 @@ def pose(tx=0.0, ty=0.0, tz=0.0, rot=(0.0, 0.0, 0.0)):
     T = exp_se3(np.array([0, 0, 0, *rot], float))
     T[:3, 3] = (tx, ty, tz)
     return T
+
+
+def _ms(d):
+    """A kernels.MapState of the arrays in the dict ``d`` (shared, not copied)."""
+    return MapState(**{k: d[k] for k in MapState._fields})
+
+
+def _cam(Kc):
+    return np.array([Kc.fx, Kc.fy, Kc.cx, Kc.cy])
 
 
 @pytest.fixture(scope="module")
@@ -61,13 +71,13 @@ def _run_line(cur, ref, gx, gy, T_ref_cur, Kc, x, y, lo, prior, hi, prm, impl, r
     t = np.ascontiguousarray(T_ref_cur[:3, 3])
     c = -R.T @ t
     fx, fy, cx, cy = Kc.fx, Kc.fy, Kc.cx, Kc.cy
-    ok, ex, ey = (K.epipolar_direction if impl == "kernel" else naive.epipolar_direction)(
+    ok, ex, ey = (kernels.epipolar_direction if impl == "kernel" else naive.epipolar_direction)(
         cur, x, y, float(x), float(y), c, fx, fy, cx, cy, prm)
     if not ok:
         return None
     gxi, gyi = float(gx[y, x]), float(gy[y, x])
     if impl == "kernel":
-        return K.line_stereo(cur, ref, float(x), float(y), ex, ey, lo, prior, hi, R, t, fx, fy, cx, cy, gxi, gyi,
+        return kernels.line_stereo(cur, ref, float(x), float(y), ex, ey, lo, prior, hi, R, t, fx, fy, cx, cy, gxi, gyi,
                              residual, prm, allow_long, np.empty(64), np.empty(64))
     return naive.line_stereo(cur, ref, float(x), float(y), ex, ey, lo, prior, hi, R, t, fx, fy, cx, cy, gxi, gyi,
                              residual, prm, allow_long, 64)
@@ -82,7 +92,7 @@ def test_line_stereo_matches_naive(tex, motion):
     rng = np.random.default_rng(2)
     cfg = MappingConfig()
     for subpixel in (True, False):
-        prm = stereo_params(dataclasses.replace(cfg, subpixel=subpixel))
+        prm = mapping_params(dataclasses.replace(cfg, subpixel=subpixel))
         n_ok = 0
         for _ in range(60):
             x, y = int(rng.integers(1, 63)), int(rng.integers(1, 47))
@@ -95,35 +105,35 @@ def test_line_stereo_matches_naive(tex, motion):
                 continue
             assert a[0] == b[0], (x, y, a, b)
             np.testing.assert_allclose(a[1:], b[1:], rtol=1e-6, atol=1e-9)
-            n_ok += a[0] == K.OK
+            n_ok += a[0] == kernels.OK
         assert n_ok > 3   # the comparison exercised successful matches too
 
 
 def test_line_stereo_edge_cases(tex):
     img_ref, cur, _, T_ref_cur = _stereo_case(tex, pose(), pose(tx=0.05), K_SMALL)
     gx, gy, _ = image_gradients(cur)
-    prm = stereo_params(MappingConfig())
+    prm = mapping_params(MappingConfig())
     R, t = np.ascontiguousarray(T_ref_cur[:3, :3]), np.ascontiguousarray(T_ref_cur[:3, 3])
     args = (K_SMALL.fx, K_SMALL.fy, K_SMALL.cx, K_SMALL.cy, 1.0, 1.0, 0.0, prm, True)
     for impl in ("kernel", "naive"):
-        f = K.line_stereo if impl == "kernel" else naive.line_stereo
+        f = kernels.line_stereo if impl == "kernel" else naive.line_stereo
         extra = (np.empty(64), np.empty(64)) if impl == "kernel" else (64,)
         # five samples leave the image at the border
-        assert f(cur, img_ref, 1.0, 20.0, 1.0, 0.0, 0.0, 0.5, 2.0, R, t, *args, *extra)[0] == K.OUT_OF_IMAGE
+        assert f(cur, img_ref, 1.0, 20.0, 1.0, 0.0, 0.0, 0.5, 2.0, R, t, *args, *extra)[0] == kernels.OUT_OF_IMAGE
         # NaN pose
         Rn = R.copy()
         Rn[0, 0] = np.nan
-        assert f(cur, img_ref, 30.0, 20.0, 1.0, 0.0, 0.0, 0.5, 2.0, Rn, t, *args, *extra)[0] in (K.OUT_OF_IMAGE, K.NUMERIC)
+        assert f(cur, img_ref, 30.0, 20.0, 1.0, 0.0, 0.0, 0.5, 2.0, Rn, t, *args, *extra)[0] in (kernels.OUT_OF_IMAGE, kernels.NUMERIC)
         # the whole interval behind the reference camera (reference far in front)
         tb = np.array([0.0, 0.0, -50.0])
-        assert f(cur, img_ref, 30.0, 20.0, 1.0, 0.0, 0.0, 0.01, 2.0, R, tb, *args, *extra)[0] == K.OUT_OF_IMAGE
+        assert f(cur, img_ref, 30.0, 20.0, 1.0, 0.0, 0.0, 0.01, 2.0, R, tb, *args, *extra)[0] == kernels.OUT_OF_IMAGE
         # scale change outside [0.7, 1.4]
         ts = np.array([0.05, 0.0, 1.0])
-        assert f(cur, img_ref, 30.0, 20.0, 1.0, 0.0, 0.0, 0.5, 2.0, R, ts, *args, *extra)[0] == K.OUT_OF_IMAGE
+        assert f(cur, img_ref, 30.0, 20.0, 1.0, 0.0, 0.0, 0.5, 2.0, R, ts, *args, *extra)[0] == kernels.OUT_OF_IMAGE
     # NaN / too short epipolar line and zero gradient are rejected before the search
     c_nan = np.array([np.nan, 0.0, 0.0])
     flat = np.full((48, 64), 100.0, np.float32)
-    for f in (K.epipolar_direction, naive.epipolar_direction):
+    for f in (kernels.epipolar_direction, naive.epipolar_direction):
         assert not f(cur, 30, 20, 30.0, 20.0, c_nan, 60.0, 60.0, 31.5, 23.5, prm)[0]
         assert not f(cur, 30, 20, 30.0, 20.0, np.zeros(3), 60.0, 60.0, 31.5, 23.5, prm)[0]
         assert not f(flat, 30, 20, 30.0, 20.0, np.array([-0.05, 0, 0]), 60.0, 60.0, 31.5, 23.5, prm)[0]
@@ -135,7 +145,7 @@ def test_observation_on_epipolar_line_recovers_known_depth(tex):
     T_ref, T_cur = pose(), pose(tx=0.06, ty=0.02)
     img_ref, cur, depth, T_ref_cur = _stereo_case(tex, T_ref, T_cur, K_MAP)
     gx, gy, mg = image_gradients(cur)
-    prm = stereo_params(MappingConfig())
+    prm = mapping_params(MappingConfig())
     rng = np.random.default_rng(5)
     errs = []
     for _ in range(200):
@@ -143,7 +153,7 @@ def test_observation_on_epipolar_line_recovers_known_depth(tex):
         true = 1.0 / depth[y, x]
         for lo, prior, hi in ((0.0, 1.0, 20.0), (true - 0.1, true + 0.05, true + 0.2)):
             r = _run_line(cur, img_ref, gx, gy, T_ref_cur, K_MAP, x, y, lo, prior, hi, prm, "kernel")
-            if r is None or r[0] != K.OK:
+            if r is None or r[0] != kernels.OK:
                 continue
             _, idepth, var, _, _ = r
             errs.append(abs(idepth - true) / true)
@@ -188,13 +198,11 @@ def test_observe_kernel_matches_naive(tex, stride):
     gx, gy, mg = image_gradients(cur)
     st = _random_state(rng, 48, 64)
     st["idepth_s"][5, 5] = np.nan                        # NaN prior: must not crash or propagate
-    prm = stereo_params(MappingConfig(min_depth=0.4, converged_skip=2))   # full-range searches fit the small image
+    prm = mapping_params(MappingConfig(min_depth=0.4, converged_skip=2))   # full-range searches fit the small image
     a = {k: v.copy() for k, v in st.items()}
     status = np.zeros((48, 64), np.int8)
-    K.observe_kernel(cur, gx, gy, mg, refs, slots, ids, Rs, ts, cs, res, a["idepth"], a["idepth_var"],
-                     a["idepth_s"], a["var_s"], a["valid"], a["validity"], a["pos_x"], a["pos_y"], a["ref_id"],
-                     a["blacklist"], a["skip"], Kc.fx, Kc.fy, Kc.cx, Kc.cy, prm, stride, 1 if stride > 1 else 0, 64,
-                     status)
+    kernels.observe_kernel(cur, gx, gy, mg, RefFrames(refs, slots, ids, Rs, ts, cs, res), _ms(a), _cam(Kc), prm,
+                           stride, 1 if stride > 1 else 0, 64, status)
     b = {k: v.copy() for k, v in st.items()}
     nstatus = naive.observe(cur, gx, gy, mg, refs, slots, ids, Rs, ts, cs, res, b, Kc.fx, Kc.fy, Kc.cx, Kc.cy,
                             prm, stride, 1 if stride > 1 else 0, 64)
@@ -213,11 +221,10 @@ def test_observe_with_empty_buffer_changes_nothing(tex):
     st["valid"][:] = 1
     a = {k: v.copy() for k, v in st.items()}
     status = np.zeros((48, 64), np.int8)
-    K.observe_kernel(cur, gx, gy, np.full_like(mg, 50.0), np.zeros((1, 48, 64), np.float32), np.zeros(0, np.int64),
-                     np.zeros(0, np.int64), np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
-                     a["idepth"], a["idepth_var"], a["idepth_s"], a["var_s"], a["valid"], a["validity"], a["pos_x"],
-                     a["pos_y"], a["ref_id"], a["blacklist"], a["skip"], 60.0, 60.0, 31.5, 23.5,
-                     stereo_params(MappingConfig()), 1, 0, 64, status)
+    empty = RefFrames(np.zeros((1, 48, 64), np.float32), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                      np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    kernels.observe_kernel(cur, gx, gy, np.full_like(mg, 50.0), empty, _ms(a), np.array([60.0, 60.0, 31.5, 23.5]),
+                           mapping_params(MappingConfig()), 1, 0, 64, status)
     for k in st:
         np.testing.assert_array_equal(a[k], st[k])
 
@@ -243,13 +250,9 @@ def test_fusion_lowers_variance_and_lands_between(tex):
     before = {k: v.copy() for k, v in st.items()}
     T_ref_cur = np.linalg.inv(T_ref) @ T_cur
     status = np.zeros((h, w), np.int8)
-    K.observe_kernel(cur, gx, gy, mg, img_ref[None], np.zeros(1, np.int64), np.zeros(1, np.int64),
-                     T_ref_cur[None, :3, :3].copy(), T_ref_cur[None, :3, 3].copy(),
-                     (-T_ref_cur[:3, :3].T @ T_ref_cur[:3, 3])[None], np.zeros(1), st["idepth"], st["idepth_var"],
-                     st["idepth_s"], st["var_s"], st["valid"], st["validity"], st["pos_x"], st["pos_y"],
-                     st["ref_id"], st["blacklist"], st["skip"], Kc.fx, Kc.fy, Kc.cx, Kc.cy,
-                     stereo_params(MappingConfig()),
-                     1, 0, 64, status)
+    refs = RefFrames(img_ref[None], np.zeros(1, np.int64), np.zeros(1, np.int64), T_ref_cur[None, :3, :3].copy(),
+                     T_ref_cur[None, :3, 3].copy(), (-T_ref_cur[:3, :3].T @ T_ref_cur[:3, 3])[None], np.zeros(1))
+    kernels.observe_kernel(cur, gx, gy, mg, refs, _ms(st), _cam(Kc), mapping_params(MappingConfig()), 1, 0, 64, status)
     upd = status == 1
     assert upd.sum() > 500
     assert np.all(st["idepth_var"][upd] <= before["idepth_var"][upd])
@@ -273,11 +276,7 @@ def _run_propagate(st, img_old, img_new, mg_new, T_new_old, Kc, cfg):
                                                       "validity", "pos_x", "pos_y", "ref_id", "skip")}
     out["blacklist"] = st["blacklist"].copy()
     R, t = np.ascontiguousarray(T_new_old[:3, :3]), np.ascontiguousarray(T_new_old[:3, 3])
-    res = K.propagate_kernel(st["idepth_s"], st["idepth_var"], st["valid"], st["validity"], st["pos_x"], st["pos_y"],
-                             st["ref_id"], st["skip"], img_old, img_new, mg_new, R, t, Kc.fx, Kc.fy, Kc.cx, Kc.cy,
-                             *_prop_args(cfg), out["idepth"], out["idepth_var"], out["idepth_s"], out["var_s"],
-                             out["valid"], out["validity"], out["pos_x"], out["pos_y"], out["ref_id"],
-                             out["blacklist"], out["skip"])
+    res = kernels.propagate_kernel(_ms(st), img_old, img_new, mg_new, R, t, _cam(Kc), mapping_params(cfg), _ms(out))
     return out, res
 
 
@@ -393,8 +392,9 @@ def test_regularize_matches_naive(var_mode):
     a_v = np.zeros((25, 31), np.float32)
     a_valid = np.zeros((25, 31), np.uint8)
     bl = st["blacklist"].copy()
-    K.regularize_kernel(st["idepth"], st["idepth_var"], st["valid"], st["validity"], bl, 2, 0.005625, 1.0, 24.0,
-                        var_mode, a_d, a_v, a_valid)
+    cfg = MappingConfig(reg_radius=2, reg_dist_var=0.005625, reg_diff_fac=1.0, reg_validity_sum=24.0,
+                        reg_var_mode=("min", "own", "fused")[var_mode])
+    kernels.regularize_kernel(_ms({**st, "blacklist": bl, "idepth_s": a_d, "var_s": a_v}), mapping_params(cfg), a_valid)
     n_d, n_v, n_valid, n_bl = naive.regularize(st["idepth"], st["idepth_var"], st["valid"], st["validity"],
                                                st["blacklist"], 2, 0.005625, 1.0, 24.0, var_mode)
     np.testing.assert_array_equal(a_valid, n_valid)
@@ -414,8 +414,10 @@ def test_regularize_preserves_edges():
     o_d = np.zeros((h, w), np.float32)
     o_v = np.zeros((h, w), np.float32)
     o_valid = np.zeros((h, w), np.uint8)
-    K.regularize_kernel(d, var, valid, np.full((h, w), 20.0, np.float32), np.zeros((h, w), np.int32), 2, 0.005625,
-                        1.0, 24.0, 0, o_d, o_v, o_valid)
+    st = _random_state(np.random.default_rng(0), h, w)
+    st.update(idepth=d, idepth_var=var, valid=valid, validity=np.full((h, w), 20.0, np.float32),
+              blacklist=np.zeros((h, w), np.int32), idepth_s=o_d, var_s=o_v)
+    kernels.regularize_kernel(_ms(st), mapping_params(MappingConfig(reg_var_mode="min")), o_valid)
     np.testing.assert_allclose(o_d, d, rtol=1e-6)
     assert o_valid.all()
 
@@ -429,7 +431,9 @@ def test_fill_matches_naive():
     flag = np.zeros_like(st["valid"])
     bl = st["blacklist"].copy()
     skip = st["skip"].copy()
-    K.fill_kernel(*(o[k] for k in names), bl, skip, mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0, flag)
+    cfg = MappingConfig(min_grad=5.0, min_blacklist=-1, fill_validity_sum=30.0, unblacklist_validity_sum=100.0,
+                        init_var=0.125, fill_validity=0.0)
+    kernels.fill_kernel(_ms({**o, "blacklist": bl, "skip": skip}), mg, mapping_params(cfg), flag)
     created = naive.fill(st["idepth"], st["idepth_var"], st["valid"], st["validity"], st["ref_id"], st["blacklist"],
                          mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0)
     assert {tuple(p) for p in np.argwhere(flag)} == set(created)
@@ -521,28 +525,6 @@ def test_depth_accuracy_by_hand():
     assert empty["density"] == 0.0 and math.isnan(empty["median_abs_rel_error"])
 
 
-def test_rescale_is_consistent(tex):
-    frames = _plane_frames(tex, 4, K_SMALL)
-    m = Mapper(MappingConfig(), K_SMALL)
-    m.initialize_from_depth(frames[0][0], frames[0][1])
-    m.update(frames[1][0])
-    m.update(frames[2][0])
-    idp, var, valid = m.current()
-    m.rescale(2.0)
-    idp2, var2, valid2 = m.current()
-    np.testing.assert_allclose(idp2, 2 * idp, rtol=1e-6)
-    np.testing.assert_allclose(var2, 4 * var, rtol=1e-6)
-    assert m.frame.T_world_cam[0, 3] == pytest.approx(frames[2][0].T_world_cam[0, 3] / 2)
-    # a scaled next frame continues the map at the new scale
-    T = frames[3][0].T_world_cam.copy()
-    T[:3, 3] /= 2
-    m.update(MapFrame(3, 0.1, frames[3][0].image, T))
-    acc = depth_accuracy(m.current()[0], m.current()[2], frames[3][1] / 2)
-    assert acc["median_abs_rel_error"] < 0.01
-    with pytest.raises(InputError):
-        m.rescale(0.0)
-
-
 def test_budget_subsamples_candidates(tex):
     frames = _plane_frames(tex, 4, K_MAP)
     m = Mapper(dataclasses.replace(MappingConfig(), budget_ms=0.01), K_MAP)
@@ -582,7 +564,7 @@ def test_input_errors(tex):
 
 
 def test_warmup_runs():
-    K.warmup()
+    kernels.warmup()
 
 
 def test_reference_buffer_is_bounded_and_ordered(tex):

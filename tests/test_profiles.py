@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from lite_vo.config import load_profile, profile_names
-from lite_vo.profiler import PAPER_PROFILES, profile_resolution
+from lite_vo.profiling import PAPER_PROFILES, profile_resolution
 
 PROFILES = Path(__file__).resolve().parents[1] / "profiles"
 

@@ -9,7 +9,7 @@ from lite_vo.camera import PinholeIntrinsics
 from lite_vo.geometry import exp_se3, inverse_se3, log_se3
 from lite_vo.image import gradients, image_pyramid
 from lite_vo.tracking import Tracker, TrackingConfig, TrackingReference, TrackingResult
-from lite_vo.tracking import _kernels as K
+from lite_vo.tracking import _kernels as kernels
 
 INTR = PinholeIntrinsics(262.5, 262.5, 159.5, 119.5, 320, 240)     # phone profile mapping resolution
 LEVELS, TRACK_LEVEL = 5, 1                                          # tracking at 160x120
@@ -17,7 +17,7 @@ LEVELS, TRACK_LEVEL = 5, 1                                          # tracking a
 
 # ----------------------------------------------------------------------------- kernels vs naive
 def _random_points(rng, n, with_edge_cases=True):
-    pts = np.empty((n, K.PTS_COLS), np.float32)
+    pts = np.empty((n, kernels.PTS_COLS), np.float32)
     d = rng.uniform(0.3, 1.2, n)
     xn = rng.uniform(-0.8, 0.8, n)
     yn = rng.uniform(-0.6, 0.6, n)
@@ -33,16 +33,25 @@ def _random_points(rng, n, with_edge_cases=True):
     return pts
 
 
-def _kernel_vs_naive(pts, img3, T, args, interp=K.INTERP_BILINEAR):
-    acc = np.empty(K.ACC_SIZE)
-    buf = np.empty((K.BUF_ROWS, max(len(pts), 1)))
-    K.accumulate(pts, img3, interp, T, *args, buf, acc)
+def _args(fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k, good_c2, good_g2, border, min_z):
+    """``(cam, prm, aff_a, aff_b)``: the kernel arguments after the pose."""
+    prm = np.zeros(kernels.TP_N)
+    prm[kernels.TP_SIGMA_I2], prm[kernels.TP_HUBER], prm[kernels.TP_AFF_K] = sigma_i2, huber_k, aff_k
+    prm[kernels.TP_GOOD_C2], prm[kernels.TP_GOOD_G2] = good_c2, good_g2
+    prm[kernels.TP_BORDER], prm[kernels.TP_MIN_Z] = border, min_z
+    return np.array([fx, fy, cx, cy], np.float64), prm, aff_a, aff_b
+
+
+def _kernel_vs_naive(pts, img3, T, args, interp=kernels.INTERP_BILINEAR):
+    acc = np.empty(kernels.ACC_SIZE)
+    buf = np.empty((kernels.BUF_ROWS, max(len(pts), 1)))
+    kernels.accumulate(pts, img3, interp, T, *args, buf, acc)
     ref = naive.accumulate(pts, img3, interp, T, *args)
     np.testing.assert_allclose(acc, ref, rtol=1e-6, atol=1e-6)
     return acc
 
 
-@pytest.mark.parametrize("interp", [K.INTERP_BILINEAR, K.INTERP_BSPLINE])
+@pytest.mark.parametrize("interp", [kernels.INTERP_BILINEAR, kernels.INTERP_BSPLINE])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_accumulate_matches_naive(seed, interp):
     rng = np.random.default_rng(seed)
@@ -55,10 +64,10 @@ def test_accumulate_matches_naive(seed, interp):
     img3[20, 30, :] = np.nan                                # NaN pixel
     pts = _random_points(rng, 300)
     T = exp_se3(rng.normal(0, [0.05, 0.05, 0.05, 0.05, 0.05, 0.05]))
-    args = (35.0, 36.0, 19.5, 14.5, 16.0, 1.5, 1.1, -3.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
+    args = _args(35.0, 36.0, 19.5, 14.5, 16.0, 1.5, 1.1, -3.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
     acc = _kernel_vs_naive(pts, img3, T, args, interp)
-    assert 0 < acc[K.ACC_N] < len(pts) - 2                  # some points skipped, most used
-    assert acc[K.ACC_GOOD] + acc[K.ACC_BAD] == acc[K.ACC_N]
+    assert 0 < acc[kernels.ACC_N] < len(pts) - 2                  # some points skipped, most used
+    assert acc[kernels.ACC_GOOD] + acc[kernels.ACC_BAD] == acc[kernels.ACC_N]
 
 
 def test_accumulate_all_points_behind_or_outside_and_empty():
@@ -66,9 +75,9 @@ def test_accumulate_all_points_behind_or_outside_and_empty():
     img3 = rng.uniform(0, 255, (20, 20, 3)).astype(np.float32)
     pts = _random_points(rng, 50, with_edge_cases=False)
     pts[:, 2] *= -1                                         # everything behind the camera
-    args = (20.0, 20.0, 9.5, 9.5, 16.0, 1.5, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
+    args = _args(20.0, 20.0, 9.5, 9.5, 16.0, 1.5, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
     acc = _kernel_vs_naive(pts, img3, np.eye(4), args)
-    assert acc[K.ACC_N] == 0 and np.all(acc == 0)
+    assert acc[kernels.ACC_N] == 0 and np.all(acc == 0)
     acc = _kernel_vs_naive(pts[:0], img3, np.eye(4), args)
     assert np.all(acc == 0)
 
@@ -78,9 +87,9 @@ def test_accumulate_zero_gradient_gives_zero_hessian():
     img3 = np.zeros((20, 20, 3), np.float32)
     img3[:, :, 0] = 100.0
     pts = _random_points(rng, 40, with_edge_cases=False)
-    args = (20.0, 20.0, 9.5, 9.5, 16.0, 1.5, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
+    args = _args(20.0, 20.0, 9.5, 9.5, 16.0, 1.5, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
     acc = _kernel_vs_naive(pts, img3, np.eye(4), args)
-    assert acc[K.ACC_N] > 0 and np.all(acc[K.ACC_H:K.ACC_G + 6] == 0)
+    assert acc[kernels.ACC_N] > 0 and np.all(acc[kernels.ACC_H:kernels.ACC_G + 6] == 0)
 
 
 def test_accumulate_jacobian_matches_finite_differences():
@@ -95,13 +104,13 @@ def test_accumulate_jacobian_matches_finite_differences():
     pts[0, 4] = 0.0
     T = exp_se3(np.array([0.01, 0.02, -0.01, 0.01, -0.02, 0.01]))
     intr = PinholeIntrinsics(70.0, 70.0, 39.5, 29.5, 80, 60)
-    args = (intr.fx, intr.fy, intr.cx, intr.cy, 1.0, 1e9, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
-    acc = np.empty(K.ACC_SIZE)
-    buf = np.empty((K.BUF_ROWS, 1))
-    K.accumulate(pts, img3, K.INTERP_BILINEAR, T, *args, buf, acc)
+    args = _args(intr.fx, intr.fy, intr.cx, intr.cy, 1.0, 1e9, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
+    acc = np.empty(kernels.ACC_SIZE)
+    buf = np.empty((kernels.BUF_ROWS, 1))
+    kernels.accumulate(pts, img3, kernels.INTERP_BILINEAR, T, *args, buf, acc)
     H = np.zeros((6, 6))
     g = np.zeros(6)
-    K.unpack_normal_equations(acc, H, g)
+    kernels.unpack_normal_equations(acc, H, g)
     # single point, weight 1: g = J r, H = J J^T -> J = g / r
     r0 = naive.residuals(pts, img, T, intr)[0]
     J = g / r0
@@ -119,20 +128,20 @@ def test_solve6_and_exp_se3_nb():
     A = A @ A.T + 0.1 * np.eye(6)
     b = rng.normal(size=6)
     x = np.zeros(6)
-    assert K.solve6(A, b, x, 1e-12)
+    assert kernels.solve6(A, b, x, 1e-12)
     np.testing.assert_allclose(x, np.linalg.solve(A, b), rtol=1e-9)
     S = np.diag([1.0, 1, 1, 1, 1, 0])
-    assert not K.solve6(S, b, x, 1e-12)                    # singular (zero-gradient direction)
-    assert not K.solve6(np.full((6, 6), np.nan), b, x, 1e-12)
+    assert not kernels.solve6(S, b, x, 1e-12)                    # singular (zero-gradient direction)
+    assert not kernels.solve6(np.full((6, 6), np.nan), b, x, 1e-12)
     for xi in (rng.normal(size=6), 1e-7 * rng.normal(size=6), np.array([0.1, 0, 0, 0, 0, 0.0]),
                np.array([0, 0, 0, 3.0, 0, 0])):
         E = np.empty((4, 4))
-        K.exp_se3_nb(xi, E)
+        kernels.exp_se3_nb(xi, E)
         np.testing.assert_allclose(E, exp_se3(xi), atol=1e-12)
 
 
 def test_kernels_warmup():
-    K.warmup()
+    kernels.warmup()
 
 
 # ----------------------------------------------------------------------------- reference
@@ -162,7 +171,7 @@ def test_reference_build_levels_and_immutability():
                                atol=1e-3)
     raw = TrackingReference.build(pyr, idepth, var, valid, INTR, frame_id=7, smooth_sigma=0.0)
     np.testing.assert_array_equal(raw.levels[1].intensity, pyr[1][lv.y.astype(int), lv.x.astype(int)])
-    for arr in (lv.x, lv.y, lv.intensity, lv.idepth, lv.idepth_var, lv.points, ref.idepth_pyr[2]):
+    for arr in (lv.x, lv.y, lv.intensity, lv.idepth, lv.idepth_var, lv.points):
         assert not arr.flags.writeable and arr.flags.c_contiguous
     with pytest.raises(AttributeError):
         ref.frame_id = 3
@@ -297,14 +306,14 @@ def test_bspline_jacobian_is_the_exact_derivative_of_the_spline():
     img = rng.uniform(0, 255, (40, 50)).astype(np.float32)
     coef3 = bspline_coefficient_stack(img)
     intr = PinholeIntrinsics(45.0, 45.0, 24.5, 19.5, 50, 40)
-    pts = np.zeros((1, K.PTS_COLS), np.float32)
+    pts = np.zeros((1, kernels.PTS_COLS), np.float32)
     pts[0, :3] = [0.07, -0.05, 1.2]
     pts[0, 3] = 100.0
     T = exp_se3(np.array([0.01, -0.02, 0.01, 0.02, 0.01, -0.01]))
-    args = (intr.fx, intr.fy, intr.cx, intr.cy, 1.0, 1e9, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
-    acc = _kernel_vs_naive(pts, coef3, T, args, K.INTERP_BSPLINE)
+    args = _args(intr.fx, intr.fy, intr.cx, intr.cy, 1.0, 1e9, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3)
+    acc = _kernel_vs_naive(pts, coef3, T, args, kernels.INTERP_BSPLINE)
     H, g = np.zeros((6, 6)), np.zeros(6)
-    K.unpack_normal_equations(acc, H, g)
+    kernels.unpack_normal_equations(acc, H, g)
 
     def spline_residual(Tx):
         q = Tx[:3, :3] @ pts[0, :3].astype(np.float64) + Tx[:3, 3]

@@ -36,6 +36,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--trajectory", type=Path, default=None,
                    help="camera trajectory (TUM format; default: trajectory.txt next to the video, with car.txt "
                         "and ar_summary.json)")
+    p.add_argument("--calib", type=Path, default=None,
+                   help="calibration file for the source (calib.txt, OpenCV YAML, Kalibr or ROS camera_info YAML)")
+    p.add_argument("--topic", default=None, help="image topic of a ROS bag (needed when it has several)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     return p
@@ -46,8 +49,10 @@ def import_ar():
     from lite_vo.errors import MissingExtraError
     try:
         import moderngl  # noqa: F401
-        import pybullet  # noqa: F401
         import trimesh  # noqa: F401
+
+        from ..physics import import_pybullet
+        import_pybullet()
     except ImportError as err:
         raise MissingExtraError(f"{AR_EXTRA_MESSAGE} ({err.name} is missing)") from err
     from .. import run as ar_run
@@ -76,7 +81,7 @@ def run(args) -> int:
     summary = ar_run.run_ar(args.sequence, out, profile=args.profile, poses=args.poses,
                             max_frames=args.max_frames, cfg=cfg, panels=args.panels or None,
                             overrides=args.overrides, trajectory_out=args.trajectory, mesh_out=args.mesh,
-                            quiet=args.quiet, vo_mode=args.mode)
+                            quiet=args.quiet, vo_mode=args.mode, calib=args.calib, topic=args.topic)
     t = summary["timing_ms"]
     if not summary["frames_written"]:
         raise InputError(f"{args.sequence}: no frames were processed, no video written")

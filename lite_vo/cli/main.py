@@ -16,10 +16,9 @@ import signal
 import sys
 from importlib.metadata import entry_points
 
-from ..errors import LiteVOError
-from ..session import Interrupted
+from ..errors import Interrupted, LiteVOError
 
-COMMANDS = ("run", "eval", "synth", "profile", "warmup")
+COMMANDS = ("run", "eval", "synth", "profile", "warmup", "calibrate")
 COMMAND_ENTRY_POINTS = "lite_vo.commands"
 
 

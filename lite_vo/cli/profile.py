@@ -1,11 +1,10 @@
 """``lite-vo profile``: run profiles on sequences and write the accuracy/timing report
-(parser + run; the work is in :mod:`lite_vo.profiler` and :mod:`lite_vo.profiler_report`)."""
+(parser + run; the work is in :mod:`lite_vo.profiling`)."""
 from __future__ import annotations
 
 import argparse
 
-# Kept equal to lite_vo.profiler.PAPER_PROFILES (not imported: parsers stay free of numpy).
-PAPER_PROFILES = ("desktop", "m640_t320", "m320_t320", "phone", "m160_t160", "m160_t80")
+from ..profiling.profiles import PAPER_PROFILES  # standard library only: the parser stays free of numpy
 
 _DESCRIPTION = """\
 Run each profile on each sequence (one `lite-vo run --mode sync` process per run, several in
@@ -59,7 +58,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-startup", action="store_true", help="skip the cold vs warm start-up measurement")
     p.add_argument("--no-plots", action="store_true", help="write no PNG plots (no matplotlib needed)")
     p.add_argument("--force", action="store_true", help="overwrite the report and runs in an existing --out folder")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress lines on stderr (warm-up, each run, the start-up probe); warnings still show")
     return p
 
 
@@ -68,7 +68,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..errors import InputError
-    from ..profiler import ProfileSettings, parse_profiles, run_profile
+    from ..profiling import ProfileSettings, parse_profiles, run_profile
 
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers must be at least 1")

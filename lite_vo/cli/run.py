@@ -31,6 +31,11 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--calib", type=Path, default=None,
                    help="calibration file for the source (calib.txt, OpenCV YAML, Kalibr or ROS camera_info YAML); "
                         "overrides the sequence's own")
+    p.add_argument("--topic", default=None, help="image topic of a ROS bag (needed when it has several)")
+    p.add_argument("--format", choices=("tum", "kitti"), default="tum",
+                   help="kitti: also write trajectory_kitti.txt (+ times.txt) for KITTI tables (trajectory.txt stays TUM)")
+    p.add_argument("--plot", action="store_true",
+                   help="also draw trajectory.png (against the ground truth when the sequence has one; needs matplotlib)")
     p.add_argument("--max-bad-frames", type=int, default=10,
                    help="unreadable frames in a row that are skipped before the run stops with an error (default 10)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -54,11 +59,12 @@ def run(args) -> int:
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError(f"--max-frames must be positive, got {args.max_frames}")
     source = int(args.sequence) if args.sequence.isdigit() else args.sequence
-    seq = open_sequence(source) if args.calib is None else open_sequence(source, calib=args.calib)
+    seq = open_sequence(source, calib=args.calib, topic=args.topic)
     out = args.out or Path("lite_vo_out") / seq.name
     res = run_sequence(seq, config, out, force=args.force, depth_source=args.depth, pose_source=args.poses,
                        max_frames=args.max_frames, start_frame=args.start_frame, quiet=args.quiet,
-                       profile_name=args.profile, max_bad_frames=args.max_bad_frames)
+                       profile_name=args.profile, max_bad_frames=args.max_bad_frames,
+                       kitti=args.format == "kitti", plot=args.plot)
     c = res.info["frames"]
     skipped = f", {c['skipped']} unreadable skipped" if c.get("skipped") else ""
     msg = (f"{seq.name}: {res.status}; {c['tracked']} of {c['in']} frames tracked, {c['lost']} lost, "

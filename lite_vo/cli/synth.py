@@ -51,10 +51,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    import sys
     import time
 
     from ..errors import InputError
+    from ..progress import Progress
     from ..synth import SynthConfig, generate_sequence
 
     if args.noise < 0:
@@ -68,15 +68,17 @@ def run(args) -> int:
     cfg = SynthConfig(accel_noise_std=args.accel_noise, accel_rate_hz=args.accel_rate)
     t0 = time.perf_counter()
 
-    def progress(i, n):
-        if not args.quiet and (i == n or i % 10 == 0) and sys.stderr.isatty():
-            print(f"\rsynth: frame {i}/{n}", end="" if i < n else "\n", file=sys.stderr)
+    bar = Progress(args.frames, f"synth {args.scene}/{args.trajectory}", quiet=args.quiet)
 
-    res = generate_sequence(args.out, scene=args.scene, trajectory=args.trajectory,
-                            n_frames=args.frames, seed=args.seed, width=args.width,
-                            height=args.height, noise_sigma=args.noise, blur=args.blur,
-                            exposure=args.exposure, force=args.force, config=cfg,
-                            progress=progress)
+    def progress(i, n):
+        bar.update(i - bar.done)
+
+    with bar:
+        res = generate_sequence(args.out, scene=args.scene, trajectory=args.trajectory,
+                                n_frames=args.frames, seed=args.seed, width=args.width,
+                                height=args.height, noise_sigma=args.noise, blur=args.blur,
+                                exposure=args.exposure, force=args.force, config=cfg,
+                                progress=progress)
     if not args.quiet:
         print(f"wrote {res.n_frames} frames ({args.width}x{args.height}, scene {args.scene}, "
               f"trajectory {args.trajectory}, seed {args.seed}) to {res.path} in "

@@ -1,5 +1,5 @@
-"""Calibration sources: the project's ``calib.txt``, the published TUM Freiburg calibrations,
-and EuRoC ``sensor.yaml`` files (read by a small tolerant parser, no PyYAML).
+"""The project's ``calib.txt`` and the published TUM Freiburg calibrations. The YAML formats
+(OpenCV, Kalibr, ROS, EuRoC) and format detection are in :mod:`lite_vo.io.calib_formats`.
 
 ``calib.txt`` (comments with ``#``)::
 
@@ -7,6 +7,8 @@ and EuRoC ``sensor.yaml`` files (read by a small tolerant parser, no PyYAML).
     width height
     depth_scale 5000                    # optional: depth PNG units per metre (TUM default 5000)
     model fov                           # optional: then line 1 is `fx fy cx cy omega` (FOV/ATAN model)
+    model equidistant                   # optional: then line 1 is `fx fy cx cy k1 k2 k3 k4` (fisheye,
+                                        # the Kannala-Brandt model of cv2.fisheye and Kalibr)
 
 Imports numpy, ``lite_vo.camera`` and the io helpers only.
 """
@@ -76,8 +78,8 @@ def read_calib_txt(path: str | Path) -> Calibration:
                 if not (np.isfinite(depth_scale) and depth_scale > 0):
                     raise InputError(f"{path} line {n}: depth_scale must be a positive number")
             elif key == "model":
-                if len(f) != 2 or f[1].lower() not in ("radtan", "fov", "none", "pinhole"):
-                    raise InputError(f"{path} line {n}: expected 'model radtan|fov|none'")
+                if len(f) != 2 or f[1].lower() not in ("radtan", "fov", "equidistant", "none", "pinhole"):
+                    raise InputError(f"{path} line {n}: expected 'model radtan|fov|equidistant|none'")
                 model = f[1].lower()
             else:
                 raise InputError(f"{path} line {n}: unknown key {f[0]!r} (known: depth_scale, model)")
@@ -98,15 +100,25 @@ def read_calib_txt(path: str | Path) -> Calibration:
     if model == "fov":
         if len(k) != 5:
             raise InputError(f"{path} line {n1}: model fov expects 'fx fy cx cy omega', got {len(k)} values")
+    elif model == "equidistant":
+        if len(k) not in (4, 8):
+            raise InputError(f"{path} line {n1}: model equidistant expects 'fx fy cx cy k1 k2 k3 k4', "
+                             f"got {len(k)} values")
     elif len(k) not in (4, 8, 9):
         raise InputError(f"{path} line {n1}: expected 'fx fy cx cy [k1 k2 p1 p2 [k3]]' (4, 8 or 9 values), "
                          f"got {len(k)}")
     if k[0] <= 0 or k[1] <= 0:
         raise InputError(f"{path} line {n1}: focal lengths fx fy must be positive")
+    for name, v, size in (("cx", k[2], w), ("cy", k[3], h)):
+        if not -0.5 <= v <= size - 0.5:
+            raise InputError(f"{path} line {n1}: principal point {name} = {v:g} lies outside the {w}x{h} image "
+                             f"(line {n2}): a calibration for another image size?")
     pin = PinholeIntrinsics(k[0], k[1], k[2], k[3], w, h)
     try:
         if model == "fov":
             cam = Camera(pin, "fov", (k[4],)) if k[4] != 0 else Camera(pin)
+        elif model == "equidistant":
+            cam = Camera(pin, "equidistant", tuple(k[4:]) if len(k) == 8 else (0.0,) * 4)
         elif len(k) > 4 and model not in ("none", "pinhole") and any(v != 0 for v in k[4:]):
             cam = Camera(pin, "radtan", tuple(k[4:]))
         else:
@@ -124,6 +136,8 @@ def write_calib_txt(path: str | Path, camera: Camera, depth_scale: Optional[floa
     lines = [f"# {c}" for c in (comment or "").splitlines()]
     if camera.model == "fov":
         lines += ["model fov", "# fx fy cx cy omega"]
+    elif camera.model == "equidistant":
+        lines += ["model equidistant", "# fx fy cx cy k1 k2 k3 k4  (pixels; fisheye, as cv2.fisheye)"]
     else:
         lines += ["# fx fy cx cy [k1 k2 p1 p2 [k3]]  (pixels; distortion in OpenCV order)"]
     vals = [i.fx, i.fy, i.cx, i.cy, *camera.params]
@@ -132,133 +146,3 @@ def write_calib_txt(path: str | Path, camera: Camera, depth_scale: Optional[floa
         lines += ["# depth PNG units per metre", f"depth_scale {float(depth_scale)!r}"]
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
-
-
-# ------------------------------------------------------------------------------------------------
-# A small YAML subset: `key: scalar`, `key: [flow, list]` (may span lines), and one level of
-# nested mappings (`T_BS:` followed by indented `data: [...]`). Enough for EuRoC sensor.yaml.
-# ------------------------------------------------------------------------------------------------
-
-def _yaml_scalar(tok: str):
-    tok = tok.strip()
-    if len(tok) >= 2 and tok[0] == tok[-1] and tok[0] in "'\"":
-        return tok[1:-1]
-    try:
-        return int(tok)
-    except ValueError:
-        pass
-    try:
-        return float(tok)
-    except ValueError:
-        return tok
-
-
-def _strip_comment(line: str) -> str:
-    out, quote = [], None
-    for ch in line:
-        if quote:
-            if ch == quote:
-                quote = None
-        elif ch in "'\"":
-            quote = ch
-        elif ch == "#":
-            break
-        out.append(ch)
-    return "".join(out).rstrip()
-
-
-def parse_simple_yaml(path: str | Path) -> dict:
-    """Parse the YAML subset of EuRoC ``sensor.yaml`` files into nested dicts / lists / scalars."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: not found")
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{path}: cannot read ({err})") from None
-    root: dict = {}
-    stack: list[tuple[int, dict]] = [(-1, root)]
-    i = 0
-    while i < len(lines):
-        n = i + 1
-        raw = _strip_comment(lines[i])
-        i += 1
-        if not raw.strip() or raw.lstrip().startswith("%") or raw.strip() == "---":
-            continue
-        indent = len(raw) - len(raw.lstrip(" "))
-        text = raw.strip()
-        if ":" not in text:
-            raise InputError(f"{path} line {n}: expected 'key: value'")
-        key, _, value = text.partition(":")
-        key, value = key.strip(), value.strip()
-        while stack and indent <= stack[-1][0]:
-            stack.pop()
-        parent = stack[-1][1]
-        if value.startswith("!!"):  # OpenCV tags like !!opencv-matrix
-            value = value.split(None, 1)[1] if " " in value else ""
-        if value == "":
-            child: dict = {}
-            parent[key] = child
-            stack.append((indent, child))
-        elif value.startswith("["):
-            buf = value
-            while "]" not in buf:
-                if i >= len(lines):
-                    raise InputError(f"{path} line {n}: unterminated list for {key!r}")
-                buf += " " + _strip_comment(lines[i]).strip()
-                i += 1
-            inner = buf[1:buf.index("]")]
-            parent[key] = [_yaml_scalar(t) for t in inner.split(",") if t.strip()]
-        else:
-            parent[key] = _yaml_scalar(value)
-    return root
-
-
-def _numbers(path: Path, d: dict, key: str, count: int | tuple) -> list[float]:
-    v = d.get(key)
-    counts = count if isinstance(count, tuple) else (count,)
-    if not isinstance(v, list) or len(v) not in counts or not all(isinstance(x, (int, float)) for x in v):
-        raise InputError(f"{path}: key {key!r} must be a list of {' or '.join(map(str, counts))} numbers")
-    return [float(x) for x in v]
-
-
-def yaml_matrix4(path: Path, d: dict, key: str = "T_BS") -> np.ndarray:
-    """A 4x4 matrix stored as ``key: {rows: 4, cols: 4, data: [...]}`` (identity if absent)."""
-    if key not in d:
-        return np.eye(4)
-    m = d[key]
-    if isinstance(m, dict):
-        data = _numbers(path, m, "data", 16)
-    elif isinstance(m, list):
-        data = _numbers(path, d, key, 16)
-    else:
-        raise InputError(f"{path}: key {key!r} must be a 4x4 matrix")
-    T = np.asarray(data).reshape(4, 4)
-    R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or not np.allclose(T[3], [0, 0, 0, 1]):
-        raise InputError(f"{path}: {key} is not a rigid transform")
-    return T
-
-
-def read_euroc_camera_yaml(path: str | Path) -> tuple[Camera, np.ndarray]:
-    """(Camera, T_body_cam) from an EuRoC ``cam0/sensor.yaml``."""
-    path = Path(path)
-    d = parse_simple_yaml(path)
-    model = str(d.get("camera_model", "pinhole")).lower()
-    if model != "pinhole":
-        raise InputError(f"{path}: camera_model {model!r} is not supported (only pinhole)")
-    fx, fy, cx, cy = _numbers(path, d, "intrinsics", 4)
-    w, h = _numbers(path, d, "resolution", 2)
-    dist_model = str(d.get("distortion_model", "none")).lower().replace("_", "-")
-    pin = PinholeIntrinsics(fx, fy, cx, cy, int(w), int(h))
-    if dist_model in ("radial-tangential", "radtan", "plumb-bob"):
-        coeffs = _numbers(path, d, "distortion_coefficients", (4, 5))
-        cam = Camera(pin, "radtan", tuple(coeffs))
-    elif dist_model in ("fov", "atan"):
-        coeffs = _numbers(path, d, "distortion_coefficients", 1)
-        cam = Camera(pin, "fov", tuple(coeffs))
-    elif dist_model in ("none", ""):
-        cam = Camera(pin)
-    else:
-        raise InputError(f"{path}: distortion_model {dist_model!r} is not supported (radial-tangential, fov, none)")
-    return cam, yaml_matrix4(path, d, "T_BS")

@@ -2,8 +2,12 @@
 live cameras, all behind :func:`open_sequence`.
 
 Index files (lists, CSVs, calibrations, ground truth, accelerometer) are read and validated when
-the sequence is opened; images are read lazily while iterating. Every problem the user can fix is
-an :class:`~lite_vo.errors.InputError` with a one-line message naming the file (and line).
+the sequence is opened, with the first readable image (its size must match the calibration);
+images are read lazily while iterating. Every problem at open time is an
+:class:`~lite_vo.errors.InputError` with a one-line message naming the file (and line). A frame
+that cannot be read later (unreadable, truncated, missing or wrong-size file) is yielded as a
+bad :class:`Frame` (``image=None``, ``error="<file>: <reason>"``) and the iteration goes on.
+Colour sources also give the decoded BGR image (``Frame.color``).
 
 Imports numpy, cv2 (lazily), ``lite_vo.camera``, ``lite_vo.geometry`` and the io helpers only.
 """
@@ -21,9 +25,10 @@ from ..camera import Camera
 from ..errors import InputError
 from ..geometry import make_pose, rotmat_from_quat_xyzw
 from ._text import check_increasing, parse_table, read_lines
-from .calib import (TUM_DEPTH_SCALE, Calibration, freiburg_camera, freiburg_number, read_calib_txt,
-                    read_euroc_camera_yaml, parse_simple_yaml, yaml_matrix4)
-from .trajectory import read_trajectory
+from .calib import TUM_DEPTH_SCALE, Calibration, freiburg_camera, freiburg_number
+from .calib_formats import load_calibration, read_calibration, read_euroc_camera_yaml, read_sensor_transform
+from .trajectory import read_euroc_groundtruth, read_trajectory
+from .base import Sequence
 from .types import Accelerometer, Frame, Trajectory
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
@@ -36,40 +41,56 @@ DEFAULT_FPS = 30.0
 # image loading
 # ------------------------------------------------------------------------------------------------
 
-def _imread_grey(path: Path, camera: Camera) -> np.ndarray:
-    return _imread(path, camera)[0]
+#: a BGR image whose channels differ by at most this everywhere is grey (a grey video decoded
+#: as BGR; lossy codecs' chroma rounding leaves a few levels)
+GREY_TOLERANCE = 3
 
 
-def _imread(path: Path, camera: Camera) -> tuple[np.ndarray, np.ndarray | None]:
-    """(grey uint8, BGR uint8 colour or None for a grey file) of an image file."""
+def _is_grey(img: np.ndarray) -> bool:
+    import cv2
+    for a in (img[::7, ::5], img):           # a strided sample decides quickly for colour images
+        b, g, r = cv2.split(np.ascontiguousarray(a))
+        if max(cv2.absdiff(b, g).max(), cv2.absdiff(b, r).max()) > GREY_TOLERANCE:
+            return False
+    return True
+
+
+def _grey_and_colour(img: np.ndarray) -> tuple[np.ndarray, Optional[np.ndarray]]:
+    """(grey uint8, BGR uint8 or None) of a decoded 8-bit image; BGR images whose channels are
+    (nearly) equal count as grey."""
+    import cv2
+    if img.ndim == 2:
+        return img, None
+    if img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    elif img.shape[2] == 1:
+        return np.ascontiguousarray(img[..., 0]), None
+    elif img.shape[2] != 3:
+        return np.ascontiguousarray(img[..., 0]), None
+    grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    return grey, (None if _is_grey(img) else img)
+
+
+def _imread(path: Path) -> tuple[np.ndarray, Optional[np.ndarray]]:
+    """(grey, colour or None) of an image file, decoded once; InputError naming the file."""
     import cv2
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         if not path.is_file():
             raise InputError(f"{path}: image not found")
-        raise InputError(f"{path}: cannot read image (corrupt or unsupported format)")
-    color = None
-    if img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8:
-        color = img
-    if img.ndim == 3:
-        if img.shape[2] == 4:
-            img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
-        elif img.shape[2] == 3:
-            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-        else:
-            img = img[..., 0]
+        raise InputError(f"{path}: cannot read image (corrupt, truncated or unsupported format)")
     if img.dtype == np.uint16:
         img = (img.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
     elif img.dtype != np.uint8:
         raise InputError(f"{path}: unsupported image type {img.dtype} (expected 8-bit grey or colour)")
-    _check_size(path, img, camera, "image")
-    return img, color
+    return _grey_and_colour(img)
 
 
-def _check_size(path, img: np.ndarray, camera: Camera, what: str) -> None:
+def _check_size(path, img: np.ndarray, camera: Camera, what: str, calib_source: str = "") -> None:
     h, w = img.shape[:2]
     if (w, h) != (camera.width, camera.height):
-        raise InputError(f"{path}: {what} is {w}x{h} but the calibration says {camera.width}x{camera.height}")
+        src = f" ({calib_source})" if calib_source else ""
+        raise InputError(f"{path}: {what} is {w}x{h} but the calibration says {camera.width}x{camera.height}{src}")
 
 
 def _imread_depth(path: Path, camera: Camera, depth_scale: float) -> np.ndarray:
@@ -78,7 +99,7 @@ def _imread_depth(path: Path, camera: Camera, depth_scale: float) -> np.ndarray:
     if d is None:
         if not path.is_file():
             raise InputError(f"{path}: depth image not found")
-        raise InputError(f"{path}: cannot read depth image (corrupt or unsupported format)")
+        raise InputError(f"{path}: cannot read depth image (corrupt, truncated or unsupported format)")
     if d.ndim != 2 or d.dtype not in (np.uint16, np.float32):
         raise InputError(f"{path}: depth image must be single-channel 16-bit (or float32), got "
                          f"{d.dtype} with shape {d.shape}")
@@ -88,7 +109,7 @@ def _imread_depth(path: Path, camera: Camera, depth_scale: float) -> np.ndarray:
     return out
 
 
-def _natural_key(name: str):
+def natural_key(name: str):
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
 
 
@@ -96,78 +117,69 @@ def _natural_key(name: str):
 # sequences
 # ------------------------------------------------------------------------------------------------
 
-class Sequence:
-    """Base class: ``name``, ``camera`` (native, with distortion), ``has_depth``, ``groundtruth``,
-    ``accelerometer``, ``len()``, iteration yielding :class:`Frame` (images read lazily)."""
-
-    kind = "sequence"
-
-    def __init__(self, name: str, camera: Camera, path: Optional[Path] = None):
-        self.name = name
-        self.camera = camera
-        self.path = path
-        self.has_depth = False
-        self.groundtruth: Optional[Trajectory] = None
-        self.accelerometer: Optional[Accelerometer] = None
-        self.depth_scale: Optional[float] = None
-
-    def __len__(self) -> int:  # pragma: no cover - overridden
-        raise TypeError(f"{self.kind} sequence has no length")
-
-    def __iter__(self) -> Iterator[Frame]:  # pragma: no cover - overridden
-        raise NotImplementedError
-
-    def close(self) -> None:
-        """Release resources (video files, cameras); file sequences hold none."""
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def __repr__(self) -> str:
-        try:
-            n = f"{len(self)} frames"
-        except TypeError:
-            n = "live"
-        extras = [x for x, on in (("depth", self.has_depth), ("groundtruth", self.groundtruth is not None),
-                                  ("accelerometer", self.accelerometer is not None)) if on]
-        return (f"<{type(self).__name__} {self.name!r}: {n}, camera {self.camera.describe()}"
-                f"{', ' + ', '.join(extras) if extras else ''}>")
-
-
 class FileSequence(Sequence):
-    """A sequence of image files with known timestamps (TUM, EuRoC, image folders)."""
+    """A sequence of image files with known timestamps (TUM, EuRoC, image folders).
+
+    ``listed_in``: optional ``{frame index: "rgb.txt line N"}`` for files named in an index file,
+    quoted when such a file turns out to be missing."""
 
     def __init__(self, name: str, camera: Camera, path: Path, timestamps: np.ndarray, image_paths: list,
-                 depth_paths: Optional[list] = None, depth_scale: Optional[float] = None):
-        super().__init__(name, camera, path)
+                 depth_paths: Optional[list] = None, depth_scale: Optional[float] = None,
+                 calib_source: str = "", listed_in: Optional[dict] = None):
+        super().__init__(name, camera, path, calib_source)
         self.timestamps = np.asarray(timestamps, dtype=np.float64)
         self.timestamps.setflags(write=False)
         self.image_paths = list(image_paths)
         self.depth_paths = depth_paths
         self.depth_scale = depth_scale
         self.has_depth = depth_paths is not None and any(p is not None for p in depth_paths)
+        self._listed_in = dict(listed_in or {})
 
     def __len__(self) -> int:
         return len(self.image_paths)
 
+    def _read(self, i: int) -> Frame:
+        """Frame ``i``; InputError (naming the file) when it cannot be read."""
+        img, colour = _imread(self.image_paths[i])
+        _check_size(self.image_paths[i], img, self.camera, "image", self.calib_source)
+        depth = None
+        if self.depth_paths is not None and self.depth_paths[i] is not None:
+            depth = _imread_depth(self.depth_paths[i], self.camera, self.depth_scale or TUM_DEPTH_SCALE)
+        return Frame(i, float(self.timestamps[i]), img, depth, colour)
+
     def frame(self, i: int) -> Frame:
-        """Frame ``i`` (random access; reads the files now)."""
+        """Frame ``i`` (random access; reads the files now). A file that cannot be read gives a
+        frame with ``image=None`` and ``error`` set."""
         n = len(self)
         if not -n <= i < n:
             raise IndexError(f"frame {i} out of range for {n} frames")
         i %= n
-        img, color = _imread(self.image_paths[i], self.camera)
-        depth = None
-        if self.depth_paths is not None and self.depth_paths[i] is not None:
-            depth = _imread_depth(self.depth_paths[i], self.camera, self.depth_scale or TUM_DEPTH_SCALE)
-        return Frame(i, float(self.timestamps[i]), img, depth, color)
+        try:
+            return self._read(i)
+        except InputError as err:
+            msg = str(err)
+            if i in self._listed_in and "not found" in msg:
+                msg += f" (listed in {self._listed_in[i]})"
+            return Frame(i, float(self.timestamps[i]), None, error=msg)
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
             yield self.frame(i)
+
+    def check_first_frame(self, scan: int = 30) -> None:
+        """Open-time check: the first readable frame (among the first ``scan``) must match the
+        calibration's size; none readable is an error naming the first problem."""
+        first_error = None
+        for i in range(min(scan, len(self))):
+            try:
+                self._read(i)
+                return
+            except InputError as err:
+                if "calibration says" in str(err):
+                    raise
+                first_error = first_error or str(err)
+        n = min(scan, len(self))
+        raise InputError(f"{self.path}: none of the first {n} images can be read (first: {first_error})")
 
 
 class TumSequence(FileSequence):
@@ -182,14 +194,19 @@ class ImageFolderSequence(FileSequence):
     kind = "images"
 
 
+#: a video that fails to decode tries this many further frames before it counts as ended
+VIDEO_MAX_UNDECODABLE = 5
+
+
 class VideoSequence(Sequence):
-    """Frames of a video file (timestamps ``index / fps``)."""
+    """Frames of a video file (timestamps ``index / fps``). Frames that do not decode in the middle
+    of the file, or have the wrong size, are yielded as bad frames (``error`` set)."""
 
     kind = "video"
 
-    def __init__(self, path: Path, camera: Camera, fps: Optional[float] = None):
+    def __init__(self, path: Path, camera: Camera, fps: Optional[float] = None, calib_source: str = ""):
         import cv2
-        super().__init__(path.stem, camera, path)
+        super().__init__(path.stem, camera, path, calib_source)
         cap = cv2.VideoCapture(str(path))
         if not cap.isOpened():
             raise InputError(f"{path}: cannot open video (unsupported codec or not a video)")
@@ -199,7 +216,7 @@ class VideoSequence(Sequence):
         cap.release()
         if not ok or img is None:
             raise InputError(f"{path}: video contains no readable frame")
-        _check_size(path, img, camera, "video frame")
+        _check_size(path, img, camera, "video frame", calib_source)
         self.fps = float(fps) if fps else (vfps if vfps > 0 else DEFAULT_FPS)
         self._count = max(n, 1)
         self.timestamps = np.arange(self._count) / self.fps   # nominal; iteration may end earlier
@@ -214,14 +231,25 @@ class VideoSequence(Sequence):
         self._cap = cap
         try:
             i = 0
+            failed: list[int] = []        # indices that did not decode, pending a later good frame
             while True:
                 ok, img = cap.read()
                 if not ok or img is None:
-                    break
-                if img.ndim == 3:
-                    img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-                _check_size(self.path, img, self.camera, f"video frame {i}")
-                yield Frame(i, i / self.fps, img, None)
+                    failed.append(i)
+                    i += 1
+                    if len(failed) > VIDEO_MAX_UNDECODABLE:
+                        break             # the end of the file (or nothing more decodes)
+                    continue
+                for j in failed:          # a frame decoded after some did not: those were bad
+                    yield Frame(j, j / self.fps, None, error=f"{self.path}: video frame {j} cannot be decoded")
+                failed = []
+                grey, colour = _grey_and_colour(img)
+                try:
+                    _check_size(self.path, grey, self.camera, f"video frame {i}", self.calib_source)
+                except InputError as err:
+                    yield Frame(i, i / self.fps, None, error=str(err))
+                else:
+                    yield Frame(i, i / self.fps, grey, None, colour)
                 i += 1
         finally:
             cap.release()
@@ -234,36 +262,52 @@ class VideoSequence(Sequence):
 
 class LiveCameraSequence(Sequence):
     """A live camera (``cv2.VideoCapture(index)``); timestamps from ``time.monotonic()``;
-    ``len()`` raises TypeError. Iteration ends when the camera stops delivering frames."""
+    ``len()`` raises TypeError. The first frame is read when opening (its size must match the
+    calibration); iteration ends when the camera stops delivering frames."""
 
     kind = "camera"
 
-    def __init__(self, index: int, camera: Camera):
+    def __init__(self, index: int, camera: Camera, calib_source: str = ""):
         import cv2
-        super().__init__(f"camera{index}", camera, None)
+        super().__init__(f"camera{index}", camera, None, calib_source)
         self.index = index
         cap = cv2.VideoCapture(index)
         if not cap.isOpened():
             raise InputError(f"camera {index}: cannot open (no such device or it is busy)")
         cap.set(cv2.CAP_PROP_FRAME_WIDTH, camera.width)
         cap.set(cv2.CAP_PROP_FRAME_HEIGHT, camera.height)
+        ok, img = cap.read()
+        if not ok or img is None:
+            cap.release()
+            raise InputError(f"camera {index}: delivers no frame")
+        try:
+            _check_size(f"camera {index}", img, camera, "frame", calib_source)
+        except InputError:
+            cap.release()
+            raise
+        self._first = (time.monotonic(), img)
         self._cap = cap
 
     def __len__(self) -> int:
         raise TypeError("a live camera has no length")
 
     def __iter__(self) -> Iterator[Frame]:
-        import cv2
         i = 0
         while self._cap is not None:
-            ok, img = self._cap.read()
-            t = time.monotonic()
-            if not ok or img is None:
-                break
-            if img.ndim == 3:
-                img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-            _check_size(f"camera {self.index}", img, self.camera, "frame")
-            yield Frame(i, t, img, None)
+            if self._first is not None:
+                (t, img), self._first = self._first, None
+            else:
+                ok, img = self._cap.read()
+                t = time.monotonic()
+                if not ok or img is None:
+                    break
+            grey, colour = _grey_and_colour(img)
+            try:
+                _check_size(f"camera {self.index}", grey, self.camera, "frame", self.calib_source)
+            except InputError as err:
+                yield Frame(i, t, None, error=str(err))
+            else:
+                yield Frame(i, t, grey, None, colour)
             i += 1
 
     def close(self) -> None:
@@ -277,9 +321,11 @@ class LiveCameraSequence(Sequence):
 # ------------------------------------------------------------------------------------------------
 
 def _read_file_list(path: Path, base: Path, what: str, sep: str | None = None,
-                    ts_scale: float = 1.0) -> tuple[np.ndarray, list[Path]]:
-    """(timestamps, paths) of a ``timestamp filename`` list; checks fields, order and existence."""
-    ts, files, numbers = [], [], []
+                    ts_scale: float = 1.0) -> tuple[np.ndarray, list[Path], dict]:
+    """(timestamps, paths, {index: "<list> line N"} of the listed files that do not exist) of a
+    ``timestamp filename`` list; checks fields and order. Missing files are read as bad frames
+    later; a list whose files are all missing is an error."""
+    ts, files, numbers, missing = [], [], [], {}
     for n, s in read_lines(path, what):
         f = s.split(sep) if sep else s.split()
         f = [x.strip() for x in f]
@@ -293,15 +339,17 @@ def _read_file_list(path: Path, base: Path, what: str, sep: str | None = None,
             raise InputError(f"{path} line {n}: timestamp {f[0]!r} is not finite")
         p = base / f[1]
         if not p.is_file():
-            raise InputError(f"{path} line {n}: file {f[1]} does not exist ({p})")
+            missing[len(files)] = f"{path.name} line {n}"
         ts.append(t)
         files.append(p)
         numbers.append(n)
     if not files:
         raise InputError(f"{path}: lists no images")
+    if len(missing) == len(files):
+        raise InputError(f"{path}: none of the {len(files)} listed files exists (first: {files[0]})")
     t = np.asarray(ts, dtype=np.float64)
     check_increasing(path, t, numbers)
-    return t, files
+    return t, files, missing
 
 
 def associate_nearest(t_a: np.ndarray, t_b: np.ndarray, max_dt: float) -> np.ndarray:
@@ -344,14 +392,6 @@ def _read_accelerometer_txt(path: Path) -> Accelerometer:
     return Accelerometer(arr[:, 0], arr[:, 1:4])
 
 
-def _load_calibration(calib) -> Calibration:
-    if isinstance(calib, Calibration):
-        return calib
-    if isinstance(calib, Camera):
-        return Calibration(calib, None, "camera object")
-    return read_calib_txt(Path(calib))
-
-
 def open_tum(folder: Path, calib=None, depth_max_dt: float = DEFAULT_DEPTH_MAX_DT) -> TumSequence:
     """A TUM RGB-D layout folder (``rgb.txt`` + optional depth, ground truth, accelerometer).
 
@@ -363,27 +403,27 @@ def open_tum(folder: Path, calib=None, depth_max_dt: float = DEFAULT_DEPTH_MAX_D
     Kinect's own accelerometer axes, which this reader does not convert."""
     name = folder.name
     if calib is not None:
-        cal = _load_calibration(calib)
+        cal = load_calibration(calib)
     elif (folder / "calib.txt").is_file():
-        cal = read_calib_txt(folder / "calib.txt")
+        cal = read_calibration(folder / "calib.txt")
     elif freiburg_number(name) is not None:
         cal = Calibration(freiburg_camera(freiburg_number(name)), TUM_DEPTH_SCALE, f"Freiburg {freiburg_number(name)}")
     else:
         raise InputError(f"{folder}: no calib.txt (and the folder name is not rgbd_dataset_freiburgN_*, "
                          "so no published calibration applies)")
-    t_rgb, rgb = _read_file_list(folder / "rgb.txt", folder, "image list")
+    t_rgb, rgb, missing = _read_file_list(folder / "rgb.txt", folder, "image list")
     depth_paths = None
     if (folder / "depth.txt").is_file():
-        t_d, dfiles = _read_file_list(folder / "depth.txt", folder, "depth list")
+        t_d, dfiles, _ = _read_file_list(folder / "depth.txt", folder, "depth list")
         match = associate_nearest(t_rgb, t_d, depth_max_dt)
         depth_paths = [dfiles[j] if j >= 0 else None for j in match]
     depth_scale = cal.depth_scale if cal.depth_scale is not None else TUM_DEPTH_SCALE
-    seq = TumSequence(name, cal.camera, folder, t_rgb, rgb, depth_paths, depth_scale)
+    seq = TumSequence(name, cal.camera, folder, t_rgb, rgb, depth_paths, depth_scale, cal.source, missing)
     if (folder / "groundtruth.txt").is_file():
         seq.groundtruth = read_trajectory(folder / "groundtruth.txt", "ground truth file")
     if (folder / "accelerometer.txt").is_file():
         seq.accelerometer = _read_accelerometer_txt(folder / "accelerometer.txt")
-    _imread_grey(rgb[0], cal.camera)  # fail early on a wrong calibration or unreadable images
+    seq.check_first_frame()  # fail early on a wrong calibration or unreadable images
     return seq
 
 
@@ -396,14 +436,17 @@ def open_euroc(mav0: Path, calib=None) -> EurocSequence:
         raise InputError(f"{cam_dir}: EuRoC camera folder not found")
     cam_yaml = cam_dir / "sensor.yaml"
     if calib is not None:
-        camera = _load_calibration(calib).camera
-        T_body_cam = yaml_matrix4(cam_yaml, parse_simple_yaml(cam_yaml)) if cam_yaml.is_file() else np.eye(4)
+        cal = load_calibration(calib)
+        camera, calib_source = cal.camera, cal.source
+        T_body_cam = read_sensor_transform(cam_yaml) if cam_yaml.is_file() else np.eye(4)
     else:
         if not cam_yaml.is_file():
             raise InputError(f"{cam_yaml}: camera calibration not found")
         camera, T_body_cam = read_euroc_camera_yaml(cam_yaml)
-    t, images = _read_file_list(cam_dir / "data.csv", cam_dir / "data", "image list", sep=",", ts_scale=1e-9)
-    seq = EurocSequence(name, camera, mav0, t, images)
+        calib_source = str(cam_yaml)
+    t, images, missing = _read_file_list(cam_dir / "data.csv", cam_dir / "data", "image list", sep=",",
+                                         ts_scale=1e-9)
+    seq = EurocSequence(name, camera, mav0, t, images, calib_source=calib_source, listed_in=missing)
     R_cam_body = T_body_cam[:3, :3].T
 
     imu_csv = mav0 / "imu0" / "data.csv"
@@ -414,29 +457,14 @@ def open_euroc(mav0: Path, calib=None) -> EurocSequence:
             ts = arr[:, 0] * 1e-9
             check_increasing(imu_csv, ts, numbers)
             imu_yaml = mav0 / "imu0" / "sensor.yaml"
-            T_body_imu = yaml_matrix4(imu_yaml, parse_simple_yaml(imu_yaml)) if imu_yaml.is_file() else np.eye(4)
+            T_body_imu = read_sensor_transform(imu_yaml) if imu_yaml.is_file() else np.eye(4)
             acc_cam = arr[:, 4:7] @ (R_cam_body @ T_body_imu[:3, :3]).T
             seq.accelerometer = Accelerometer(ts, acc_cam)
 
     gt_csv = mav0 / "state_groundtruth_estimate0" / "data.csv"
     if gt_csv.is_file():
-        arr, numbers = parse_table(gt_csv, 8, None, sep=",", what="ground truth file",
-                                   layout="timestamp [ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z")
-        if len(arr):
-            ts = arr[:, 0] * 1e-9
-            check_increasing(gt_csv, ts, numbers)
-            q_wxyz = arr[:, 4:8]
-            bad = np.nonzero(np.linalg.norm(q_wxyz, axis=1) < 1e-6)[0]
-            if len(bad):
-                raise InputError(f"{gt_csv} line {numbers[bad[0]]}: quaternion has zero length")
-            R = rotmat_from_quat_xyzw(q_wxyz[:, [1, 2, 3, 0]])
-            T_world_body = make_pose(R, arr[:, 1:4])
-            gt_yaml = mav0 / "state_groundtruth_estimate0" / "sensor.yaml"
-            T_body_gt = yaml_matrix4(gt_yaml, parse_simple_yaml(gt_yaml)) if gt_yaml.is_file() else np.eye(4)
-            # the ground truth gives the pose of its sensor frame S: T_world_S; body = S T_BS^-1
-            T_world_bodyframe = T_world_body @ np.linalg.inv(T_body_gt)
-            seq.groundtruth = Trajectory(ts, T_world_bodyframe @ T_body_cam)
-    _imread_grey(images[0], camera)
+        seq.groundtruth, _ = read_euroc_groundtruth(gt_csv, T_body_cam=T_body_cam)
+    seq.check_first_frame()
     return seq
 
 
@@ -444,13 +472,13 @@ def open_image_folder(folder: Path, calib=None, fps: Optional[float] = None) -> 
     """A folder of images (sorted by name, natural order) with ``calib.txt`` (or ``calib``);
     timestamps from ``times.txt`` (one per image) if present, else ``index / fps``."""
     files = sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS),
-                   key=lambda p: _natural_key(p.name))
+                   key=lambda p: natural_key(p.name))
     if not files:
         raise InputError(f"{folder}: no image files")
     if calib is not None:
-        cal = _load_calibration(calib)
+        cal = load_calibration(calib)
     elif (folder / "calib.txt").is_file():
-        cal = read_calib_txt(folder / "calib.txt")
+        cal = read_calibration(folder / "calib.txt")
     else:
         raise InputError(f"{folder}: image folder without calib.txt (pass a calibration file)")
     times = folder / "times.txt"
@@ -465,10 +493,10 @@ def open_image_folder(folder: Path, calib=None, fps: Optional[float] = None) -> 
         if not f > 0:
             raise InputError(f"fps must be positive, got {fps}")
         t = np.arange(len(files)) / f
-    seq = ImageFolderSequence(folder.name, cal.camera, folder, t, files)
+    seq = ImageFolderSequence(folder.name, cal.camera, folder, t, files, calib_source=cal.source)
     if (folder / "groundtruth.txt").is_file():
         seq.groundtruth = read_trajectory(folder / "groundtruth.txt", "ground truth file")
-    _imread_grey(files[0], cal.camera)
+    seq.check_first_frame()
     return seq
 
 
@@ -481,25 +509,35 @@ def _find_mav0(folder: Path) -> Optional[Path]:
 
 
 def open_sequence(path: Union[str, os.PathLike, int], calib=None, *, fps: Optional[float] = None,
-                  depth_max_dt: float = DEFAULT_DEPTH_MAX_DT) -> Sequence:
+                  depth_max_dt: float = DEFAULT_DEPTH_MAX_DT, topic: Optional[str] = None) -> Sequence:
     """Open a sequence.
 
     ``path``: a TUM RGB-D layout folder (``rgb.txt``), an EuRoC folder (with ``mav0/``, or
     ``mav0`` itself), an image folder (+ ``calib.txt`` inside or ``calib``), a video file
     (+ ``calib`` or ``calib.txt`` beside it), or an ``int`` (or digit string) camera index for a
     live camera (``calib`` required).
-    ``calib``: path of a ``calib.txt`` (or a :class:`Camera`) overriding the sequence's own.
+    ``calib``: a calibration file in any format :func:`~lite_vo.io.calib_formats.read_calibration`
+    reads (``calib.txt``, OpenCV, Kalibr, ROS ``camera_info`` or EuRoC YAML), a
+    :class:`Calibration` or a :class:`Camera`, overriding the sequence's own.
     ``fps``: frame rate for image folders without ``times.txt`` and to override a video's rate.
     ``depth_max_dt``: TUM rgb/depth association tolerance in seconds.
+    ``path`` may also be a ROS 1 ``.bag`` or a ROS 2 bag folder (``metadata.yaml``), read by
+    :func:`lite_vo.io.rosbag.open_rosbag`; ``topic``: its image topic (needed when it has several).
     """
     if isinstance(path, (int, np.integer)) or (isinstance(path, str) and path.isdigit() and not Path(path).exists()):
         index = int(path)
         if calib is None:
             raise InputError(f"camera {index}: a calibration file is required for a live camera")
-        return LiveCameraSequence(index, _load_calibration(calib).camera)
+        cal = load_calibration(calib)
+        return LiveCameraSequence(index, cal.camera, cal.source)
     p = Path(path).expanduser()
     if not p.exists():
         raise InputError(f"{p}: no such file or directory")
+    from .rosbag import is_rosbag, open_rosbag
+    if is_rosbag(p):
+        return open_rosbag(p, calib, topic=topic)
+    if topic is not None:
+        raise InputError(f"{p}: topic= applies to ROS bags only")
     if p.is_file():
         if p.suffix.lower() in VIDEO_EXTENSIONS:
             if calib is None:
@@ -507,7 +545,8 @@ def open_sequence(path: Union[str, os.PathLike, int], calib=None, *, fps: Option
                 if not beside.is_file():
                     raise InputError(f"{p}: video needs a calibration file (calib.txt beside it or calib=)")
                 calib = beside
-            return VideoSequence(p, _load_calibration(calib).camera, fps)
+            cal = load_calibration(calib)
+            return VideoSequence(p, cal.camera, fps, cal.source)
         raise InputError(f"{p}: unknown sequence format (expected a folder or a video file "
                          f"{'/'.join(VIDEO_EXTENSIONS)})")
     if (p / "rgb.txt").is_file():

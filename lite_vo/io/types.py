@@ -14,15 +14,25 @@ import numpy as np
 class Frame:
     """One frame of a sequence as recorded.
 
-    ``image``: uint8 (H, W) grey at the native resolution (distorted, as recorded);
-    ``depth``: float32 (H, W) metres, 0 = invalid, or None when the sequence has no depth for it;
-    ``color``: uint8 (H, W, 3) BGR at the native resolution, or None for grey sources.
+    ``image``: uint8 (H, W) grey at the native resolution (distorted, as recorded), or None for a
+    bad frame; ``depth``: float32 (H, W) metres, 0 = invalid, or None when the sequence has no
+    depth for it; ``color``: the BGR uint8 (H, W, 3) image as decoded when the source is colour
+    (``image`` is its grey conversion), None for grey sources; ``error``: None, or for a frame
+    that could not be read (unreadable, truncated, missing or wrong-size file) a one-line
+    ``"<file>: <reason>"`` (then ``image``, ``depth`` and ``color`` are None). Readers yield bad
+    frames instead of stopping, so the caller decides how many it tolerates.
     """
     index: int
     timestamp: float
-    image: np.ndarray
+    image: Optional[np.ndarray]
     depth: Optional[np.ndarray] = None
     color: Optional[np.ndarray] = None
+    error: Optional[str] = None
+
+    @property
+    def ok(self) -> bool:
+        """True when the frame was read (``error`` is None)."""
+        return self.error is None
 
 
 class Trajectory:

@@ -5,6 +5,6 @@ Public API: :class:`Mapper`, :class:`MapFrame`, :class:`MappingStats`, :func:`de
 Imports: numpy, numba, ``lite_vo.camera``/``geometry``/``errors``; never tracking, system or ar_demo.
 """
 from .config import MappingConfig
-from .depth_map import MapFrame, Mapper, MappingStats, depth_accuracy, image_gradients
+from .mapper import MapFrame, Mapper, MappingStats, depth_accuracy, image_gradients
 
 __all__ = ["MappingConfig", "MapFrame", "Mapper", "MappingStats", "depth_accuracy", "image_gradients"]

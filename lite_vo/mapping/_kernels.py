@@ -3,23 +3,26 @@
 Owns: image gradients for mapping, the epipolar line search (`line_stereo`), the stereo
 observation pass over the whole map (`observe_kernel`), forward-warping propagation
 (`propagate_kernel`), regularisation (`regularize_kernel`) and hole filling (`fill_kernel`).
-Every threshold is an argument (mostly packed into the float64 parameter vector built by
-``lite_vo.mapping.depth_map.stereo_params``; the ``P_*`` constants below are only indices into
-it). Kernels never allocate per pixel; the public wrappers in ``depth_map.py`` validate inputs and
-allocate outputs.
+Every threshold is an argument: one float64 parameter vector ``prm`` built once per configuration
+by ``lite_vo.mapping.mapper.mapping_params`` (the ``P_*`` constants below are only indices into
+it). Kernels never allocate per pixel; the :class:`~lite_vo.mapping.mapper.Mapper` validates inputs
+and allocates outputs.
 
-Map state layout (all HxW, one entry per pixel of the current frame):
+Map state (:class:`MapState`, a namedtuple of HxW arrays, one entry per pixel of the current frame):
 ``idepth, idepth_var`` (float32, the filter state), ``idepth_s, var_s`` (float32, regularised
 values used for tracking and as stereo prior), ``valid`` (uint8), ``validity`` (float32 counter),
 ``pos_x, pos_y`` (float32 sub-pixel location of the hypothesis), ``ref_id`` (int64, oldest frame
 id usable as stereo reference), ``blacklist`` (int32, decremented on removals/failed creations),
 ``skip`` (int32, stereo iterations still to skip: a converged pixel waits for more baseline).
 
-Imports: numpy and numba only.
+The buffer of stereo reference frames is a :class:`RefFrames` namedtuple (oldest first).
+
+Imports: numpy and numba only (no module of this package: the warm-up calls the kernels directly).
 """
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
@@ -57,7 +60,30 @@ P_OBSERVE_VALIDITY = 28
 P_CREATE_PRIOR = 29
 P_MIN_BLACKLIST = 30
 P_SKIP_CONVERGED = 31
-P_N = 32
+P_BORDER = 32             # propagation: drop hypotheses this close to the border
+P_PROP_DIFF_CONST2 = 33   # propagation intensity check: r^2 / (this + P_PROP_DIFF_GRAD * g^2) > 1 drops
+P_PROP_DIFF_GRAD = 34
+P_PROP_MERGE = 35         # collisions fuse when this * diff^2 <= var_a + var_b
+P_PROP_VAR_ADD = 36       # sigma_p^2 added on propagation
+P_VALIDITY_CAP = 37       # validity_max + validity_max_grad
+P_REG_RADIUS = 38
+P_REG_DIST_VAR = 39
+P_REG_DIFF_FAC = 40
+P_REG_VALIDITY_SUM = 41
+P_REG_VAR_MODE = 42       # 0 min, 1 own, 2 fused
+P_FILL_VALIDITY_SUM = 43
+P_UNBLACKLIST_SUM = 44
+P_INIT_VAR = 45
+P_FILL_VALIDITY = 46
+P_N = 47
+
+#: the per-pixel arrays of a map (see the module docstring for dtypes)
+MapState = namedtuple("MapState", ["idepth", "idepth_var", "idepth_s", "var_s", "valid", "validity",
+                                   "pos_x", "pos_y", "ref_id", "blacklist", "skip"])
+#: the stereo reference buffer, oldest first: ``images`` (slots, H, W) float32, ``slots`` / ``ids``
+#: (n,) int64, ``R`` / ``t`` (n, 3, 3) / (n, 3) T_ref_cur, ``c`` (n, 3) reference centres in the
+#: current camera, ``residual`` (n,) tracking residual of each reference
+RefFrames = namedtuple("RefFrames", ["images", "slots", "ids", "R", "t", "c", "residual"])
 
 # return codes of line_stereo
 OK = 0
@@ -343,17 +369,18 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
-def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c,
-                   ref_residual, idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x,
-                   pos_y, ref_id, blacklist, skip, fx, fy, cx, cy, prm, stride, offset, scratch_len,
-                   status):
-    """One stereo pass over the map (in place). ``ref_*`` index the buffer oldest -> newest.
+def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scratch_len, status):
+    """One stereo pass over the map ``st`` (a :class:`MapState`, in place) against the reference
+    buffer ``refs`` (:class:`RefFrames`, oldest -> newest); ``cam = (fx, fy, cx, cy)``.
 
     status per pixel: 0 not tried, 1 updated, 2 created, 3 inconsistent, 4 failed search
     (no/bad match), 5 no usable reference (line outside the image, scale change, NaN),
     6 removed (gradient too low), 7 epipolar line unusable (too short, weak gradient along it),
     8 skipped (converged: its last search line was shorter than min_epl_search).
     """
+    ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c, ref_residual = refs
+    idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist, skip = st
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     h, w = cur.shape
     nref = ref_slots.shape[0]
     min_grad = prm[P_MIN_GRAD]
@@ -486,17 +513,26 @@ def observe_kernel(cur, gx, gy, maxgrad, ref_images, ref_slots, ref_ids, ref_R, 
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
-def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id, skip, img_old,
-                     img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, min_grad, diff_const2,
-                     diff_grad_mult, merge_fac, var_add, validity_cap,
-                     o_idepth, o_var, o_idepth_s, o_var_s, o_valid, o_validity, o_pos_x, o_pos_y,
-                     o_ref_id, o_blacklist, o_skip):
-    """Forward-warp every hypothesis into the new frame (serial: collisions). ``R, t`` = T_new_old.
+def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, new):
+    """Forward-warp every hypothesis of the map ``old`` into the map ``new`` of the new frame
+    (both :class:`MapState`; serial: collisions). ``R, t`` = T_new_old; ``cam = (fx, fy, cx, cy)``.
 
-    ``o_valid`` must be all 0 on entry; the other outputs are only written where a hypothesis
-    lands (``o_blacklist`` is reset to 0 there). Returns (kept, dropped_border,
+    ``new.valid`` must be all 0 on entry; the other arrays of ``new`` are only written where a
+    hypothesis lands (``blacklist`` is reset to 0 there). Returns (kept, dropped_border,
     dropped_intensity, occluded, fused).
     """
+    idepth_s, idepth_var, valid, validity = old.idepth_s, old.idepth_var, old.valid, old.validity
+    pos_x, pos_y, ref_id, skip = old.pos_x, old.pos_y, old.ref_id, old.skip
+    (o_idepth, o_var, o_idepth_s, o_var_s, o_valid, o_validity, o_pos_x, o_pos_y, o_ref_id, o_blacklist,
+     o_skip) = new
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
+    border = prm[P_BORDER]
+    min_grad = prm[P_MIN_GRAD]
+    diff_const2 = prm[P_PROP_DIFF_CONST2]
+    diff_grad_mult = prm[P_PROP_DIFF_GRAD]
+    merge_fac = prm[P_PROP_MERGE]
+    var_add = prm[P_PROP_VAR_ADD]
+    validity_cap = prm[P_VALIDITY_CAP]
     h, w = idepth_s.shape
     kept = 0
     n_border = 0
@@ -583,15 +619,24 @@ def propagate_kernel(idepth_s, idepth_var, valid, validity, pos_x, pos_y, ref_id
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
-def regularize_kernel(idepth, idepth_var, valid, validity, blacklist, radius, dist_var, diff_fac,
-                      validity_th, var_mode, o_idepth_s, o_var_s, o_valid):
-    """Inverse-variance weighted, edge-preserving smoothing of the valid hypotheses.
+def regularize_kernel(st, prm, o_valid):
+    """Inverse-variance weighted, edge-preserving smoothing of the valid hypotheses of ``st``
+    (a :class:`MapState`): reads ``idepth, idepth_var, valid, validity``, writes ``idepth_s, var_s``
+    (where ``o_valid``), ``blacklist`` and ``o_valid``.
 
     A neighbour counts when ``diff_fac * diff^2 <= var_a + var_b``; weight ``1/(var + dist_var*r^2)``.
     A pixel whose compatible neighbours' validity sum is below ``validity_th`` is removed
     (``o_valid = 0``, blacklist decremented). ``o_var_s``: var_mode 0 = smallest compatible
     variance (thesis 3.2.3), 1 = the pixel's own variance, 2 = 1 / sum of the weights (LSD-SLAM).
+    Parameters ``P_REG_*`` (radius, dist_var, diff_fac, validity_th, var_mode).
     """
+    idepth, idepth_var, valid, validity, blacklist = st.idepth, st.idepth_var, st.valid, st.validity, st.blacklist
+    o_idepth_s, o_var_s = st.idepth_s, st.var_s
+    radius = int(prm[P_REG_RADIUS])
+    dist_var = prm[P_REG_DIST_VAR]
+    diff_fac = prm[P_REG_DIFF_FAC]
+    validity_th = prm[P_REG_VALIDITY_SUM]
+    var_mode = int(prm[P_REG_VAR_MODE])
     h, w = idepth.shape
     for y in prange(h):
         for x in range(w):
@@ -635,16 +680,22 @@ def regularize_kernel(idepth, idepth_var, valid, validity, blacklist, radius, di
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
-def fill_kernel(idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist, skip,
-                maxgrad, min_grad, min_blacklist, create_th, unblacklist_th, new_var, new_validity,
-                new_flag):
-    """Create hypotheses in empty pixels with gradient >= min_grad whose 5x5 validity sum
-    exceeds ``create_th`` (``unblacklist_th`` for pixels with blacklist < min_blacklist), as the
-    inverse-variance mean of the valid neighbours.
+def fill_kernel(st, maxgrad, prm, new_flag):
+    """Create hypotheses in empty pixels of ``st`` (a :class:`MapState`) with gradient >= min_grad
+    whose 5x5 validity sum exceeds ``P_FILL_VALIDITY_SUM`` (``P_UNBLACKLIST_SUM`` for pixels with
+    blacklist < ``P_MIN_BLACKLIST``), as the inverse-variance mean of the valid neighbours, with
+    variance ``P_INIT_VAR`` and validity ``P_FILL_VALIDITY``.
 
     Writes only EMPTY pixels (and sets ``new_flag`` there); ``valid`` is not modified, so every
     read sees the map before filling. The caller then sets ``valid |= new_flag``.
     """
+    idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist, skip = st
+    min_grad = prm[P_MIN_GRAD]
+    min_blacklist = prm[P_MIN_BLACKLIST]
+    create_th = prm[P_FILL_VALIDITY_SUM]
+    unblacklist_th = prm[P_UNBLACKLIST_SUM]
+    new_var = prm[P_INIT_VAR]
+    new_validity = prm[P_FILL_VALIDITY]
     h, w = idepth.shape
     for y in prange(2, h - 2):
         for x in range(2, w - 2):
@@ -684,34 +735,53 @@ def fill_kernel(idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos
             new_flag[y, x] = 1
 
 
+def new_state(h: int, w: int) -> MapState:
+    """An empty :class:`MapState` (no hypothesis; positions on the pixel grid)."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    return MapState(np.zeros((h, w), np.float32), np.zeros((h, w), np.float32), np.zeros((h, w), np.float32),
+                    np.zeros((h, w), np.float32), np.zeros((h, w), np.uint8), np.zeros((h, w), np.float32),
+                    xx.astype(np.float32), yy.astype(np.float32), np.zeros((h, w), np.int64),
+                    np.zeros((h, w), np.int32), np.zeros((h, w), np.int32))
+
+
 def warmup() -> None:
-    """Compile (and cache) every kernel of this module on tiny inputs."""
-    from .config import MappingConfig
-    from .depth_map import Mapper, MapFrame
-    from ..camera import PinholeIntrinsics
+    """Compile (and cache) every kernel of this module on tiny inputs, with the argument types the
+    Mapper passes (it hands the kernels writable C-contiguous arrays only)."""
     h, w = 24, 32
     rng = np.random.default_rng(0)
     img = (rng.random((h, w)) * 255).astype(np.float32)
-    K = PinholeIntrinsics(30.0, 30.0, 15.5, 11.5, w, h)
-    m = Mapper(MappingConfig(), K, seed=0)
-    T0 = np.eye(4)
-    T1 = np.eye(4)
-    T1[0, 3] = 0.01
-    m.initialize_random(MapFrame(0, 0.0, img, T0))
-    m.update(MapFrame(1, 0.033, img, T1))
-    m.update(MapFrame(1, 0.033, img, T1))
-    # the system's frame images may be read-only (shared with a TrackingReference): numba
-    # compiles those separately
-    img_ro = img.copy()
-    img_ro.flags.writeable = False
-    m = Mapper(MappingConfig(), K, seed=0)
-    m.initialize_random(MapFrame(0, 0.0, img_ro, T0))
-    m.update(MapFrame(1, 0.033, img_ro, T1))
-    m.update(MapFrame(2, 0.066, img, T0))
-    # the per-pixel helpers are inlined into observe_kernel; compile their standalone versions too
+    gx = np.zeros((h, w), np.float32)
+    gy = np.zeros((h, w), np.float32)
+    mg = np.zeros((h, w), np.float32)
+    gradients_kernel(img, gx, gy, mg)
+    prm = np.zeros(P_N)
+    prm[P_MIN_EPL_LENGTH] = 1.0
+    prm[P_MAX_IDEPTH] = 20.0
+    prm[P_MAX_EPL] = 30.0
+    prm[P_MIN_EPL] = 3.0
+    prm[P_MIN_SCALE] = 0.7
+    prm[P_MAX_SCALE] = 1.4
+    prm[P_BORDER_SAMPLES] = 2.0
+    prm[P_REG_RADIUS] = 2.0
+    cam = np.array([30.0, 30.0, 15.5, 11.5])
+    st = new_state(h, w)
+    st.valid[4:20, 4:28] = 1
+    st.idepth[:] = 1.0
+    st.idepth_s[:] = 1.0
+    st.idepth_var[:] = 0.01
+    st.var_s[:] = 0.01
     R = np.eye(3)
     t = np.array([0.01, 0.0, 0.0])
-    prm = m._params
+    refs = RefFrames(np.stack([img, img]), np.arange(2, dtype=np.int64), np.arange(2, dtype=np.int64),
+                     np.stack([R, R]), np.stack([t, t]), np.stack([-t, -t]), np.zeros(2))
+    status = np.zeros((h, w), np.int8)
+    observe_kernel(img, gx, gy, mg, refs, st, cam, prm, 1, 0, 64, status)
+    new = new_state(h, w)
+    propagate_kernel(st, img, img, mg, R, t, cam, prm, new)
+    o_valid = np.zeros((h, w), np.uint8)
+    regularize_kernel(st, prm, o_valid)
+    fill_kernel(st, mg, prm, o_valid)
+    # the per-pixel helpers are inlined into observe_kernel; compile their standalone versions too
     epipolar_direction(img, 10, 10, 10.0, 10.0, -t, 30.0, 30.0, 15.5, 11.5, prm)
     line_length(10.0, 10.0, 0.0, 1.0, R, t, 30.0, 30.0, 15.5, 11.5)
     line_stereo(img, img, 10.0, 10.0, 1.0, 0.0, 0.0, 1.0, 2.0, R, t, 30.0, 30.0, 15.5, 11.5, 1.0, 0.0, 0.0,

@@ -16,7 +16,9 @@ point ``q = T_new_ref p`` (``dq/dxi = [I | -[q]x]``), which is cheap.
 Reference point layout (``pts``, float32, shape (N, PTS_COLS)): ``X, Y, Z`` (the point in the
 reference camera, ``Z = 1/idepth``), ``I_ref``, ``idepth_var``.
 
-Every threshold is an argument. Imports numpy and numba only.
+Every threshold is an argument: one float64 parameter vector ``prm`` built once per configuration
+by ``lite_vo.tracking.tracker.tracking_params`` (the ``TP_*`` constants are indices into it); the
+camera of a level is ``cam = (fx, fy, cx, cy)``. Imports numpy and numba only.
 """
 from __future__ import annotations
 
@@ -33,17 +35,36 @@ ACC_ENERGY = 27    # sum of the Huber energy of the normalised residuals
 ACC_N = 28         # points inside the image (used)
 ACC_GOOD = 29      # good residuals
 ACC_BAD = 30       # bad residuals
-ACC_WR2 = 31       # sum w r^2 (IRLS-weighted squared residual)
-ACC_AFF = 32       # 5 entries: sw, s_ref, s_new, s_ref2, s_ref_new (affine-brightness sums)
-ACC_ABS_R = 37     # sum |r| (grey levels)
-ACC_SIZE = 38
+ACC_AFF = 31       # 5 entries: sw, s_ref, s_new, s_ref2, s_ref_new (affine-brightness sums)
+ACC_ABS_R = 36     # sum |r| (grey levels)
+ACC_SIZE = 37
 
 # lm_level statistics output
 ST_ITER = 0        # outer LM iterations
-ST_EVALS = 1       # kernel evaluations
-ST_ERR = 2         # final mean energy
-ST_STATUS = 3      # 0 converged/cap, 1 no points, 2 singular system
-ST_SIZE = 4
+ST_ERR = 1         # final mean energy
+ST_STATUS = 2      # 0 converged/cap, 1 no points, 2 singular system
+ST_SIZE = 3
+
+# indices into the tracking parameter vector (layout fixed; values come from TrackingConfig)
+TP_SIGMA_I2 = 0           # sigma_i^2 (grey levels^2)
+TP_HUBER = 1              # Huber threshold on the normalised residual
+TP_AFF_K = 2              # robust threshold of the affine-brightness sums (grey levels)
+TP_GOOD_C2 = 3            # good-residual test constant^2
+TP_GOOD_G2 = 4            # good-residual test gradient factor^2
+TP_BORDER = 5             # a warped point must lie this far inside the image (px)
+TP_MIN_Z = 6              # skip points whose warped depth is at or below this
+TP_CONV_RATIO = 7
+TP_CONV_EPS = 8
+TP_LAMBDA_INIT = 9
+TP_LAMBDA_ACCEPT_MAX = 10
+TP_LAMBDA_ACCEPT_FACTOR = 11
+TP_LAMBDA_REJECT_FACTOR = 12
+TP_MIN_POINTS = 13
+TP_SOLVE_EPS = 14
+TP_MIN_HESSIAN_DIAG = 15
+TP_AFF_ENABLED = 16       # 1: estimate the affine brightness
+TP_AFF_MIN_VAR = 17
+TP_N = 18
 
 INTERP_BILINEAR = 0   # bilinear intensity + bilinearly interpolated central-difference gradients
 INTERP_BSPLINE = 1    # cubic B-spline value and its exact derivative (4x4 taps)
@@ -139,22 +160,29 @@ def _reduce_normal_equations(buf, n, acc):
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
-               good_c2, good_g2, border, min_z, buf, acc):
+def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b, buf, acc):
     """Residuals, weights and normal equations of all points at pose ``T`` (= T_new_ref).
 
     ``img3``: (H, W, 3) float32 of the new image at this level: ``[I, gx, gy]`` sampled bilinearly
     when ``interp == INTERP_BILINEAR``; channel 0 = cubic B-spline coefficients (value and exact
     derivative of the spline) when ``interp == INTERP_BSPLINE`` (then ``border`` must be >= 1).
-    A point is used when its warped depth exceeds ``min_z``, its position lies in
+    A point is used when its warped depth exceeds ``prm[TP_MIN_Z]``, its position lies in
     ``[border, W-1-border) x [border, H-1-border)`` and the interpolated values are finite.
     Residual ``r = I_new(warp) - (aff_a * I_ref + aff_b)``; weight
-    ``w = 1 / (sigma_i2 + var * (dr/d idepth)^2)`` times Huber (threshold ``huber_k`` on ``|r| sqrt(w)``).
+    ``w = 1 / (sigma_i^2 + var * (dr/d idepth)^2)`` times Huber (threshold ``prm[TP_HUBER]`` on ``|r| sqrt(w)``).
     Results are written into ``acc`` (layout ``ACC_*``, zeroed first). ``buf``: float64 scratch of
     shape (8, >= N); the per-point loop fills it, a vectorised reduction then sums H and g.
     """
     for k in range(acc.shape[0]):
         acc[k] = 0.0
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
+    sigma_i2 = prm[TP_SIGMA_I2]
+    huber_k = prm[TP_HUBER]
+    aff_k = prm[TP_AFF_K]
+    good_c2 = prm[TP_GOOD_C2]
+    good_g2 = prm[TP_GOOD_G2]
+    border = prm[TP_BORDER]
+    min_z = prm[TP_MIN_Z]
     h = img3.shape[0]
     w = img3.shape[1]
     umax = w - 1.0 - border
@@ -163,7 +191,7 @@ def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, a
     r10 = T[1, 0]; r11 = T[1, 1]; r12 = T[1, 2]; t1 = T[1, 3]
     r20 = T[2, 0]; r21 = T[2, 1]; r22 = T[2, 2]; t2 = T[2, 3]
     huber_k2 = huber_k * huber_k
-    energy = 0.0; n_good = 0; wr2 = 0.0; abs_r = 0.0
+    energy = 0.0; n_good = 0; abs_r = 0.0
     a_sw = 0.0; a_sx = 0.0; a_sy = 0.0; a_sxx = 0.0; a_sxy = 0.0
     bjx = buf[0]; bjy = buf[1]; bjz = buf[2]
     bqx = buf[3]; bqy = buf[4]; bqz = buf[5]
@@ -225,7 +253,6 @@ def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, a
         bqx[m] = qx; bqy[m] = qy; bqz[m] = qz
         br[m] = r; bw[m] = wgt
         m += 1
-        wr2 += wgt * r * r
         if r * r < good_c2 + good_g2 * (gx * gx + gy * gy):
             n_good += 1
         ar = abs(r)
@@ -241,7 +268,6 @@ def accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, a
     acc[ACC_N] = m
     acc[ACC_GOOD] = n_good
     acc[ACC_BAD] = m - n_good
-    acc[ACC_WR2] = wr2
     acc[ACC_ABS_R] = abs_r
     acc[ACC_AFF + 0] = a_sw
     acc[ACC_AFF + 1] = a_sx
@@ -369,21 +395,29 @@ def _affine_from_sums(acc, a_prev, b_prev, min_var):
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def lm_level(pts, img3, interp, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_in, aff_k, aff_enabled,
-             aff_min_var, good_c2, good_g2, border, min_z, max_iter, conv_ratio, conv_eps,
-             lambda_init, lambda_accept_max, lambda_accept_factor, lambda_reject_factor,
-             min_points, solve_eps, min_hessian_diag, buf, T_out, acc_out, aff_out, stats):
+def lm_level(pts, img3, interp, T_init, cam, prm, max_iter, aff_in, buf, T_out, acc_out, aff_out, stats):
     """Iteratively re-weighted Levenberg-Marquardt on ``T_new_ref`` for one pyramid level.
 
-    Schedule (ALGORITHM_NOTES): lambda starts at 0; accepted step: ``lambda <- 0`` if
-    ``lambda <= lambda_accept_max`` else ``lambda * lambda_accept_factor``; rejected step:
-    ``lambda <- lambda_init`` if it was 0 else ``lambda * lambda_reject_factor``; damping
-    ``H_ii *= (1 + lambda)``. The level stops when ``err/last_err > conv_ratio`` after an accepted
-    step, when a rejected step has ``|dxi|^2 < conv_eps``, after ``max_iter`` accepted-or-final
+    Schedule (ALGORITHM_NOTES; parameters ``TP_LAMBDA_*``): lambda starts at 0; accepted step:
+    ``lambda <- 0`` if ``lambda <= accept_max`` else ``lambda * accept_factor``; rejected step:
+    ``lambda <- lambda_init`` if it was 0 else ``lambda * reject_factor``; damping
+    ``H_ii *= (1 + lambda)``. The level stops when ``err/last_err > TP_CONV_RATIO`` after an accepted
+    step, when a rejected step has ``|dxi|^2 < TP_CONV_EPS``, after ``max_iter`` accepted-or-final
     iterations, or when the system is singular. Each evaluation is one :func:`accumulate` pass.
     Writes the final pose (``T_out``), its accumulator (``acc_out``), the affine brightness
     (``aff_out``) and ``stats`` (layout ``ST_*``).
     """
+    conv_ratio = prm[TP_CONV_RATIO]
+    conv_eps = prm[TP_CONV_EPS]
+    lambda_init = prm[TP_LAMBDA_INIT]
+    lambda_accept_max = prm[TP_LAMBDA_ACCEPT_MAX]
+    lambda_accept_factor = prm[TP_LAMBDA_ACCEPT_FACTOR]
+    lambda_reject_factor = prm[TP_LAMBDA_REJECT_FACTOR]
+    min_points = prm[TP_MIN_POINTS]
+    solve_eps = prm[TP_SOLVE_EPS]
+    min_hessian_diag = prm[TP_MIN_HESSIAN_DIAG]
+    aff_enabled = prm[TP_AFF_ENABLED] > 0.5
+    aff_min_var = prm[TP_AFF_MIN_VAR]
     T = T_init.copy()
     Tn = np.empty((4, 4))
     E = np.empty((4, 4))
@@ -396,9 +430,7 @@ def lm_level(pts, img3, interp, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_i
     inc = np.zeros(6)
     aff_a = aff_in[0]
     aff_b = aff_in[1]
-    accumulate(pts, img3, interp, T, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
-               good_c2, good_g2, border, min_z, buf, acc)
-    evals = 1
+    accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b, buf, acc)
     iters = 0
     status = 0
     if acc[ACC_N] < min_points:
@@ -431,9 +463,7 @@ def lm_level(pts, img3, interp, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_i
                     break
                 exp_se3_nb(inc, E)
                 _matmul4(E, T, Tn)
-                accumulate(pts, img3, interp, Tn, fx, fy, cx, cy, sigma_i2, huber_k, aff_a, aff_b, aff_k,
-                           good_c2, good_g2, border, min_z, buf, acc_new)
-                evals += 1
+                accumulate(pts, img3, interp, Tn, cam, prm, aff_a, aff_b, buf, acc_new)
                 n_new = acc_new[ACC_N]
                 if n_new >= min_points:
                     err = acc_new[ACC_ENERGY] / n_new
@@ -473,16 +503,16 @@ def lm_level(pts, img3, interp, T_init, fx, fy, cx, cy, sigma_i2, huber_k, aff_i
     aff_out[0] = aff_a
     aff_out[1] = aff_b
     stats[ST_ITER] = iters
-    stats[ST_EVALS] = evals
     stats[ST_STATUS] = status
     if status == 1:
         stats[ST_ERR] = np.nan
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def extract_points(valid, idepth, idepth_var, img, fx, fy, cx, cy, pts, xs, ys):
+def extract_points(valid, idepth, idepth_var, img, cam, pts, xs, ys):
     """Fill the packed point array (layout ``PTS_COLS``) and pixel coordinates of the valid pixels,
     row-major order; returns the count (``pts`` must have room for every valid pixel)."""
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     h, w = valid.shape
     n = 0
     for y in range(h):
@@ -512,22 +542,24 @@ def warmup() -> None:
     pts[:, 4] = 1e-3
     img3 = rng.uniform(0, 255, (8, 8, 3)).astype(np.float32)
     T = np.eye(4)
+    cam = np.array([4.0, 4.0, 3.5, 3.5])
+    prm = np.zeros(TP_N)
+    prm[TP_SIGMA_I2] = 16.0
+    prm[TP_HUBER] = 1.5
+    prm[TP_BORDER] = 1.0
+    prm[TP_MIN_POINTS] = 6.0
     acc = np.empty(ACC_SIZE)
     buf = np.empty((BUF_ROWS, n))
-    accumulate(pts, img3, INTERP_BILINEAR, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3, buf, acc)
     T_out = np.empty((4, 4))
     aff = np.array([1.0, 0.0])
     aff_out = np.empty(2)
     stats = np.zeros(ST_SIZE)
-    lm_level(pts, img3, INTERP_BSPLINE, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, aff, 5.0, True, 1e-6, 1600.0, 0.25, 1.0, 1e-3,
-             3, 0.999, 1e-8, 0.2, 0.2, 0.5, 2.0, 6, 1e-12, 1e-2, buf, T_out, acc, aff_out, stats)
     # TrackingReference hands the kernels read-only point arrays: numba types those separately
     pts_ro = pts.copy()
     pts_ro.flags.writeable = False
-    accumulate(pts_ro, img3, INTERP_BILINEAR, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, 1.0, 0.0, 5.0, 1600.0, 0.25, 1.0, 1e-3,
-               buf, acc)
-    lm_level(pts_ro, img3, INTERP_BSPLINE, T, 4.0, 4.0, 3.5, 3.5, 16.0, 1.5, aff, 5.0, True, 1e-6, 1600.0, 0.25, 1.0,
-             1e-3, 3, 0.999, 1e-8, 0.2, 0.2, 0.5, 2.0, 6, 1e-12, 1e-2, buf, T_out, acc, aff_out, stats)
+    for p in (pts, pts_ro):
+        accumulate(p, img3, INTERP_BILINEAR, T, cam, prm, 1.0, 0.0, buf, acc)
+        lm_level(p, img3, INTERP_BSPLINE, T, cam, prm, 3, aff, buf, T_out, acc, aff_out, stats)
     unpack_normal_equations(acc, np.empty((6, 6)), np.empty(6))
     x = np.zeros(6)
     solve6(np.eye(6), np.ones(6), x, 1e-12)
@@ -535,5 +567,5 @@ def warmup() -> None:
     exp_se3_nb(np.full(6, 0.1), E)
     m = np.ones((4, 4), np.bool_)
     one = np.ones((4, 4), np.float32)
-    extract_points(m, one, one, one, 4.0, 4.0, 1.5, 1.5, np.empty((16, PTS_COLS), np.float32),
+    extract_points(m, one, one, one, cam, np.empty((16, PTS_COLS), np.float32),
                    np.empty(16, np.float32), np.empty(16, np.float32))

@@ -13,6 +13,7 @@ import numpy as np
 from ..camera import PinholeIntrinsics
 from ..image import gaussian_blur, idepth_pyramid
 from ._kernels import PTS_COLS, extract_points
+from .config import TrackingConfig
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
@@ -49,25 +50,19 @@ class ReferenceLevel:
 
 
 class TrackingReference:
-    """A keyframe-like reference: image pyramid + inverse-depth pyramid + per-level point arrays.
+    """A keyframe-like reference: per-level point arrays built from an image pyramid and its inverse-depth pyramid.
 
     Immutable after :meth:`build` (arrays read-only); safe to share between the tracking and the
     mapping thread, swapped as a whole under the system's lock.
     """
 
-    __slots__ = ("frame_id", "intrinsics0", "levels", "image_pyr", "idepth_pyr", "idepth_var_pyr",
-                 "valid_pyr", "smooth_sigma", "_frozen")
+    __slots__ = ("frame_id", "intrinsics0", "levels", "smooth_sigma", "_frozen")
 
-    def __init__(self, frame_id, intrinsics0, levels, image_pyr, idepth_pyr, idepth_var_pyr, valid_pyr,
-                 smooth_sigma=0.0):
+    def __init__(self, frame_id, intrinsics0, levels, smooth_sigma=0.0):
         self.frame_id = frame_id
         self.smooth_sigma = float(smooth_sigma)
         self.intrinsics0 = intrinsics0
         self.levels = tuple(levels)
-        self.image_pyr = tuple(image_pyr)
-        self.idepth_pyr = tuple(idepth_pyr)
-        self.idepth_var_pyr = tuple(idepth_var_pyr)
-        self.valid_pyr = tuple(valid_pyr)
         self._frozen = True
 
     def __setattr__(self, name, value):
@@ -102,7 +97,6 @@ class TrackingReference:
         profile never tracks on level 0, and skipping it halves the build time).
         """
         if smooth_sigma is None:
-            from .config import TrackingConfig
             smooth_sigma = TrackingConfig().smooth_sigma
         n_lvl = len(image_pyr)
         if n_lvl < 1:
@@ -115,22 +109,19 @@ class TrackingReference:
             raise ValueError(f"idepth has shape {np.shape(idepth)}, image level 0 has {img0.shape}")
         ds, vs, ms = idepth_pyramid(idepth, idepth_var, valid, n_lvl)
         levels = []
-        imgs = []
         for lvl in range(n_lvl):
             img = np.ascontiguousarray(image_pyr[lvl], dtype=np.float32)
             if img.shape != ms[lvl].shape:
                 raise ValueError(f"image level {lvl} has shape {img.shape}, expected {ms[lvl].shape}")
-            imgs.append(_ro(img))
-            K = intrinsics0.level(lvl)
+            intr = intrinsics0.level(lvl)
             n = int(np.count_nonzero(ms[lvl])) if lvl >= min_level else 0
             pts = np.empty((n, PTS_COLS), np.float32)
             xs = np.empty(n, np.float32)
             ys = np.empty(n, np.float32)
             if n:
                 src = gaussian_blur(img, smooth_sigma) if smooth_sigma > 0 else img
-                extract_points(ms[lvl], ds[lvl], vs[lvl], src, K.fx, K.fy, K.cx, K.cy, pts, xs, ys)
+                extract_points(ms[lvl], ds[lvl], vs[lvl], src, np.array([intr.fx, intr.fy, intr.cx, intr.cy]), pts, xs, ys)
             levels.append(ReferenceLevel(
-                lvl=lvl, intrinsics=K, x=_ro(xs), y=_ro(ys), intensity=_ro(pts[:, 3].copy()),
+                lvl=lvl, intrinsics=intr, x=_ro(xs), y=_ro(ys), intensity=_ro(pts[:, 3].copy()),
                 idepth=_ro(1.0 / pts[:, 2]), idepth_var=_ro(pts[:, 4].copy()), points=_ro(pts)))
-        return cls(frame_id, intrinsics0, levels, imgs, [_ro(d) for d in ds], [_ro(v) for v in vs],
-                   [_ro(m) for m in ms], smooth_sigma)
+        return cls(frame_id, intrinsics0, levels, smooth_sigma)

@@ -15,7 +15,7 @@ import numpy as np
 from ..camera import PinholeIntrinsics
 from ..geometry import inverse_se3, project_to_se3
 from ..image import bspline_coefficient_stack, gaussian_blur, intensity_gradient_stack
-from . import _kernels as K
+from . import _kernels as kernels
 from .config import TrackingConfig
 from .reference import TrackingReference
 
@@ -42,13 +42,37 @@ class TrackingResult:
     lost_reason: str = ""
     mean_abs_residual: float = float("nan")
     total_ms: float = 0.0
-    hessian: np.ndarray | None = None
 
     def quality(self) -> dict:
         """Scalar quality numbers as a plain dict (for logs and FrameResult.quality)."""
         return {"residual": self.residual, "mean_abs_residual": self.mean_abs_residual, "good_ratio": self.good_ratio, "inside_ratio": self.inside_ratio,
                 "points_used": self.points_used, "lost": self.lost, "lost_reason": self.lost_reason,
                 "affine_a": self.affine[0], "affine_b": self.affine[1], "track_ms": self.total_ms}
+
+
+def tracking_params(c: TrackingConfig) -> np.ndarray:
+    """The float64 parameter vector of the tracking kernels (layout: ``_kernels.TP_*``), built once
+    per configuration."""
+    p = np.zeros(kernels.TP_N, np.float64)
+    p[kernels.TP_SIGMA_I2] = c.sigma_i * c.sigma_i
+    p[kernels.TP_HUBER] = c.huber
+    p[kernels.TP_AFF_K] = c.affine_huber
+    p[kernels.TP_GOOD_C2] = c.good_residual_const ** 2
+    p[kernels.TP_GOOD_G2] = c.good_residual_grad ** 2
+    p[kernels.TP_BORDER] = c.border_px
+    p[kernels.TP_MIN_Z] = c.min_warp_depth
+    p[kernels.TP_CONV_RATIO] = c.converge_ratio
+    p[kernels.TP_CONV_EPS] = c.converge_eps
+    p[kernels.TP_LAMBDA_INIT] = c.lm_lambda_init
+    p[kernels.TP_LAMBDA_ACCEPT_MAX] = c.lm_lambda_accept_max
+    p[kernels.TP_LAMBDA_ACCEPT_FACTOR] = c.lm_lambda_accept_factor
+    p[kernels.TP_LAMBDA_REJECT_FACTOR] = c.lm_lambda_reject_factor
+    p[kernels.TP_MIN_POINTS] = c.min_points
+    p[kernels.TP_SOLVE_EPS] = c.solve_eps
+    p[kernels.TP_MIN_HESSIAN_DIAG] = c.min_hessian_diag
+    p[kernels.TP_AFF_ENABLED] = 1.0 if c.affine_brightness else 0.0
+    p[kernels.TP_AFF_MIN_VAR] = c.affine_min_var
+    return p
 
 
 class Tracker:
@@ -69,17 +93,19 @@ class Tracker:
         self.track_level = int(track_level)
         self.coarsest = max(self.track_level, min(self.pyramid_levels - 1, config.coarsest_level))
         self._intr = [intrinsics0.level(l) for l in range(self.pyramid_levels)]
+        self._cams = [np.array([k.fx, k.fy, k.cx, k.cy], np.float64) for k in self._intr]
+        self._params = tracking_params(config)
         self._img3 = [None] * self.pyramid_levels
-        self._acc = np.zeros(K.ACC_SIZE)
+        self._acc = np.zeros(kernels.ACC_SIZE)
         self._T_out = np.empty((4, 4))
         self._aff = np.empty(2)
         self._aff_out = np.empty(2)
-        self._stats = np.zeros(K.ST_SIZE)
-        self._buf = np.empty((K.BUF_ROWS, 1024))
-        modes = {"bspline": K.INTERP_BSPLINE, "bilinear": K.INTERP_BILINEAR}
+        self._stats = np.zeros(kernels.ST_SIZE)
+        self._buf = np.empty((kernels.BUF_ROWS, 1024))
+        modes = {"bspline": kernels.INTERP_BSPLINE, "bilinear": kernels.INTERP_BILINEAR}
         self._interp_fine = modes[config.interpolation]
         self._interp_coarse = modes[config.interpolation_coarse]
-        if K.INTERP_BSPLINE in (self._interp_fine, self._interp_coarse) and config.border_px < 1.0:
+        if kernels.INTERP_BSPLINE in (self._interp_fine, self._interp_coarse) and config.border_px < 1.0:
             raise ValueError("tracking.border_px must be >= 1 with bspline interpolation")
 
     def _max_iter(self, lvl: int) -> int:
@@ -108,9 +134,6 @@ class Tracker:
         acc = self._acc
         finest_acc = None
         finest_status = 1
-        sigma_i2 = c.sigma_i * c.sigma_i
-        good_c2 = c.good_residual_const ** 2
-        good_g2 = c.good_residual_grad ** 2
         for lvl in range(top, finest - 1, -1):
             t0 = time.perf_counter()
             lv = ref.levels[lvl]
@@ -124,29 +147,25 @@ class Tracker:
                 raise ValueError(f"new image level {lvl} has shape {img.shape}, expected "
                                  f"{(intr.height, intr.width)}")
             if self._buf.shape[1] < lv.num_points:
-                self._buf = np.empty((K.BUF_ROWS, max(lv.num_points, 2 * self._buf.shape[1])))
+                self._buf = np.empty((kernels.BUF_ROWS, max(lv.num_points, 2 * self._buf.shape[1])))
             if ref.smooth_sigma > 0:
                 img = gaussian_blur(img, ref.smooth_sigma)
             interp = self._interp_fine if lvl == finest else self._interp_coarse
-            if interp == K.INTERP_BSPLINE:
+            if interp == kernels.INTERP_BSPLINE:
                 img3 = self._img3[lvl] = bspline_coefficient_stack(img, self._img3[lvl])
             else:
                 img3 = self._img3[lvl] = intensity_gradient_stack(img, self._img3[lvl])
-            K.lm_level(lv.points, img3, interp, T, intr.fx, intr.fy, intr.cx, intr.cy, sigma_i2, c.huber,
-                       aff, c.affine_huber, bool(c.affine_brightness), c.affine_min_var, good_c2, good_g2,
-                       float(c.border_px), c.min_warp_depth, self._max_iter(lvl), c.converge_ratio,
-                       c.converge_eps, c.lm_lambda_init, c.lm_lambda_accept_max, c.lm_lambda_accept_factor,
-                       c.lm_lambda_reject_factor, c.min_points, c.solve_eps, c.min_hessian_diag, self._buf, self._T_out, acc,
-                       self._aff_out, self._stats)
-            status = int(self._stats[K.ST_STATUS])
+            kernels.lm_level(lv.points, img3, interp, T, self._cams[lvl], self._params, self._max_iter(lvl), aff,
+                             self._buf, self._T_out, acc, self._aff_out, self._stats)
+            status = int(self._stats[kernels.ST_STATUS])
             if status != 1 and np.all(np.isfinite(self._T_out)):
                 T = self._T_out.copy()
                 aff[:] = self._aff_out
-            iterations[lvl] = int(self._stats[K.ST_ITER])
+            iterations[lvl] = int(self._stats[kernels.ST_ITER])
             if lvl == finest:
                 finest_acc = acc.copy()
                 finest_status = status
-                finest_err = float(self._stats[K.ST_ERR])
+                finest_err = float(self._stats[kernels.ST_ERR])
             level_ms[lvl] = (time.perf_counter() - t0) * 1e3
 
         lv = ref.levels[finest]
@@ -155,20 +174,17 @@ class Tracker:
         if finest_acc is None or finest_status == 1:
             res.lost_reason = ("no points (empty map, or reference built with min_level above the tracking level)"
                                if lv.num_points == 0 else "too few points inside the image")
-            res.points_used = 0 if finest_acc is None else int(finest_acc[K.ACC_N])
+            res.points_used = 0 if finest_acc is None else int(finest_acc[kernels.ACC_N])
             res.inside_ratio = res.points_used / max(lv.num_pixels, 1)
             res.total_ms = (time.perf_counter() - t_start) * 1e3
             return res
-        n_in = finest_acc[K.ACC_N]
-        n_good, n_bad = finest_acc[K.ACC_GOOD], finest_acc[K.ACC_BAD]
+        n_in = finest_acc[kernels.ACC_N]
+        n_good, n_bad = finest_acc[kernels.ACC_GOOD], finest_acc[kernels.ACC_BAD]
         res.points_used = int(n_in)
         res.inside_ratio = float(n_in / max(lv.num_pixels, 1))
         res.good_ratio = float(n_good / max(n_good + n_bad, 1.0))
         res.residual = finest_err
-        res.mean_abs_residual = float(finest_acc[K.ACC_ABS_R] / max(n_in, 1.0))
-        H = np.empty((6, 6))
-        K.unpack_normal_equations(finest_acc, H, np.empty(6))
-        res.hessian = H
+        res.mean_abs_residual = float(finest_acc[kernels.ACC_ABS_R] / max(n_in, 1.0))
         if np.all(np.isfinite(T)):
             res.T_ref_new = inverse_se3(project_to_se3(T))
         if not np.all(np.isfinite(T)):

@@ -1,9 +1,10 @@
-"""The semi-dense depth map of the current frame and the :class:`Mapper` that maintains it.
+"""The :class:`Mapper`: the semi-dense inverse-depth map of the current frame and how it is maintained.
 
 Owns: :class:`MapFrame` (one tracked frame handed to mapping), :class:`MappingStats`,
 :class:`Mapper` (map state, the bounded buffer of past frames used as stereo references,
-one mapping iteration = propagate + observe + regularise + fill) and :func:`depth_accuracy`.
-The per-pixel work is done by the numba kernels in ``_kernels.py``.
+one mapping iteration = propagate + observe + regularise + fill), :func:`mapping_params` (the
+kernels' parameter vector) and :func:`depth_accuracy`. The per-pixel work is done by the numba
+kernels in ``_kernels.py``.
 
 Threading: a Mapper is owned by ONE thread (the mapping thread, or the caller in sync mode).
 All its members are written by that thread only; :meth:`Mapper.current` returns copies, so the
@@ -15,13 +16,14 @@ never tracking, system, io or anything of the AR demo.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..camera import PinholeIntrinsics
 from ..errors import InputError
-from . import _kernels as K
+from . import _kernels as kernels
+from ._kernels import MapState, RefFrames, new_state
 from .config import MappingConfig
 
 
@@ -69,41 +71,57 @@ class MappingStats:
 _VAR_MODES = {"min": 0, "own": 1, "fused": 2}
 
 
-def stereo_params(cfg: MappingConfig) -> np.ndarray:
-    """The float64 parameter vector of the stereo kernels (layout: ``_kernels.P_*``)."""
-    p = np.zeros(K.P_N, np.float64)
-    p[K.P_MIN_GRAD] = cfg.min_grad
-    p[K.P_MIN_EPL_LENGTH] = cfg.min_epl_length
-    p[K.P_MIN_EPL_GRAD_SQ] = cfg.min_epl_grad_sq
-    p[K.P_MIN_EPL_ANGLE_COS] = cfg.min_epl_angle_cos
-    p[K.P_MAX_IDEPTH] = 1.0 / cfg.min_depth
-    p[K.P_MAX_EPL] = cfg.max_epl_search
-    p[K.P_MIN_EPL] = cfg.min_epl_search
-    p[K.P_SSD_MAX] = cfg.ssd_max
-    p[K.P_SSD_GRAD_FACTOR] = cfg.ssd_grad_factor
-    p[K.P_AMBIGUITY] = cfg.ambiguity_factor
-    p[K.P_MIN_SCALE] = cfg.min_scale
-    p[K.P_MAX_SCALE] = cfg.max_scale
-    p[K.P_SUBPIXEL] = 1.0 if cfg.subpixel else 0.0
-    p[K.P_SIGMA_I2] = cfg.sigma_i ** 2
-    p[K.P_MAX_VAR] = cfg.max_var
-    p[K.P_PRED_NOISE] = cfg.prediction_noise
-    p[K.P_FAIL_VAR_INC] = cfg.fail_var_inflation
-    p[K.P_BORDER_SAMPLES] = cfg.search_border
-    p[K.P_MIN_CLIPPED_EPL] = cfg.min_clipped_epl
-    p[K.P_GEO_BASE] = cfg.geo_error_base
-    p[K.P_SUBPIX_VAR] = cfg.subpixel_var
-    p[K.P_NOSUBPIX_VAR] = cfg.no_subpixel_var
-    p[K.P_SEARCH_SIGMAS] = cfg.search_sigmas
-    p[K.P_DIFF_FAC_OBSERVE] = cfg.observe_diff_fac
-    p[K.P_VALIDITY_INC] = cfg.validity_inc
-    p[K.P_VALIDITY_DEC] = cfg.validity_dec
-    p[K.P_VALIDITY_MAX] = cfg.validity_max
-    p[K.P_VALIDITY_MAX_GRAD] = cfg.validity_max_grad
-    p[K.P_OBSERVE_VALIDITY] = cfg.observe_validity
-    p[K.P_CREATE_PRIOR] = cfg.create_prior_idepth
-    p[K.P_MIN_BLACKLIST] = cfg.min_blacklist
-    p[K.P_SKIP_CONVERGED] = cfg.converged_skip
+def mapping_params(cfg: MappingConfig) -> np.ndarray:
+    """The float64 parameter vector of the mapping kernels (layout: ``_kernels.P_*``), built once
+    per configuration."""
+    p = np.zeros(kernels.P_N, np.float64)
+    p[kernels.P_MIN_GRAD] = cfg.min_grad
+    p[kernels.P_MIN_EPL_LENGTH] = cfg.min_epl_length
+    p[kernels.P_MIN_EPL_GRAD_SQ] = cfg.min_epl_grad_sq
+    p[kernels.P_MIN_EPL_ANGLE_COS] = cfg.min_epl_angle_cos
+    p[kernels.P_MAX_IDEPTH] = 1.0 / cfg.min_depth
+    p[kernels.P_MAX_EPL] = cfg.max_epl_search
+    p[kernels.P_MIN_EPL] = cfg.min_epl_search
+    p[kernels.P_SSD_MAX] = cfg.ssd_max
+    p[kernels.P_SSD_GRAD_FACTOR] = cfg.ssd_grad_factor
+    p[kernels.P_AMBIGUITY] = cfg.ambiguity_factor
+    p[kernels.P_MIN_SCALE] = cfg.min_scale
+    p[kernels.P_MAX_SCALE] = cfg.max_scale
+    p[kernels.P_SUBPIXEL] = 1.0 if cfg.subpixel else 0.0
+    p[kernels.P_SIGMA_I2] = cfg.sigma_i ** 2
+    p[kernels.P_MAX_VAR] = cfg.max_var
+    p[kernels.P_PRED_NOISE] = cfg.prediction_noise
+    p[kernels.P_FAIL_VAR_INC] = cfg.fail_var_inflation
+    p[kernels.P_BORDER_SAMPLES] = cfg.search_border
+    p[kernels.P_MIN_CLIPPED_EPL] = cfg.min_clipped_epl
+    p[kernels.P_GEO_BASE] = cfg.geo_error_base
+    p[kernels.P_SUBPIX_VAR] = cfg.subpixel_var
+    p[kernels.P_NOSUBPIX_VAR] = cfg.no_subpixel_var
+    p[kernels.P_SEARCH_SIGMAS] = cfg.search_sigmas
+    p[kernels.P_DIFF_FAC_OBSERVE] = cfg.observe_diff_fac
+    p[kernels.P_VALIDITY_INC] = cfg.validity_inc
+    p[kernels.P_VALIDITY_DEC] = cfg.validity_dec
+    p[kernels.P_VALIDITY_MAX] = cfg.validity_max
+    p[kernels.P_VALIDITY_MAX_GRAD] = cfg.validity_max_grad
+    p[kernels.P_OBSERVE_VALIDITY] = cfg.observe_validity
+    p[kernels.P_CREATE_PRIOR] = cfg.create_prior_idepth
+    p[kernels.P_MIN_BLACKLIST] = cfg.min_blacklist
+    p[kernels.P_SKIP_CONVERGED] = cfg.converged_skip
+    p[kernels.P_BORDER] = cfg.border
+    p[kernels.P_PROP_DIFF_CONST2] = cfg.prop_diff_const ** 2
+    p[kernels.P_PROP_DIFF_GRAD] = cfg.prop_diff_grad_fac
+    p[kernels.P_PROP_MERGE] = cfg.prop_merge_fac
+    p[kernels.P_PROP_VAR_ADD] = cfg.propagation_sigma
+    p[kernels.P_VALIDITY_CAP] = cfg.validity_max + cfg.validity_max_grad
+    p[kernels.P_REG_RADIUS] = cfg.reg_radius
+    p[kernels.P_REG_DIST_VAR] = cfg.reg_dist_var
+    p[kernels.P_REG_DIFF_FAC] = cfg.reg_diff_fac
+    p[kernels.P_REG_VALIDITY_SUM] = cfg.reg_validity_sum
+    p[kernels.P_REG_VAR_MODE] = _VAR_MODES[cfg.reg_var_mode]
+    p[kernels.P_FILL_VALIDITY_SUM] = cfg.fill_validity_sum
+    p[kernels.P_UNBLACKLIST_SUM] = cfg.unblacklist_validity_sum
+    p[kernels.P_INIT_VAR] = cfg.init_var
+    p[kernels.P_FILL_VALIDITY] = cfg.fill_validity
     return p
 
 
@@ -116,26 +134,8 @@ def image_gradients(image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     gy = np.zeros(img.shape, np.float32)
     mg = np.zeros(img.shape, np.float32)
     if img.shape[0] >= 1 and img.shape[1] >= 1:
-        K.gradients_kernel(img, gx, gy, mg)
+        kernels.gradients_kernel(img, gx, gy, mg)
     return gx, gy, mg
-
-
-class _State:
-    """Per-pixel arrays of the map (layout documented in ``_kernels.py``)."""
-
-    def __init__(self, h: int, w: int):
-        self.idepth = np.zeros((h, w), np.float32)
-        self.idepth_var = np.zeros((h, w), np.float32)
-        self.idepth_s = np.zeros((h, w), np.float32)
-        self.var_s = np.zeros((h, w), np.float32)
-        self.valid = np.zeros((h, w), np.uint8)
-        self.validity = np.zeros((h, w), np.float32)
-        yy, xx = np.mgrid[0:h, 0:w]
-        self.pos_x = xx.astype(np.float32)
-        self.pos_y = yy.astype(np.float32)
-        self.ref_id = np.zeros((h, w), np.int64)
-        self.blacklist = np.zeros((h, w), np.int32)
-        self.skip = np.zeros((h, w), np.int32)
 
 
 @dataclass
@@ -163,9 +163,10 @@ class Mapper:
         if self.h < 1 or self.w < 1:
             raise InputError(f"Mapper: invalid image size {self.w}x{self.h}")
         self._rng = np.random.default_rng(seed)
-        self._params = stereo_params(config)
-        self.state = _State(self.h, self.w)
-        self._spare = _State(self.h, self.w)
+        self._params = mapping_params(config)
+        self._cam = np.array([intrinsics0.fx, intrinsics0.fy, intrinsics0.cx, intrinsics0.cy], np.float64)
+        self.state: MapState = new_state(self.h, self.w)
+        self._spare: MapState = new_state(self.h, self.w)
         self._grid_x = self.state.pos_x.copy()
         self._grid_y = self.state.pos_y.copy()
         self._cur: _Prepared | None = None
@@ -178,7 +179,9 @@ class Mapper:
 
     # ------------------------------------------------------------------ helpers
     def _check_frame(self, frame: MapFrame, gradients: bool = True) -> _Prepared:
-        img = np.ascontiguousarray(frame.image, dtype=np.float32)
+        # the mapper's own copy: the caller may make its array read-only later (a TrackingReference
+        # shares it), and the kernels are compiled for writable arrays only
+        img = np.array(frame.image, dtype=np.float32, order="C", copy=True)
         if img.shape != (self.h, self.w):
             raise InputError(f"Mapper: frame {frame.frame_id} image has shape {img.shape}, "
                              f"expected {(self.h, self.w)} (mapping resolution)")
@@ -190,10 +193,6 @@ class Mapper:
         gx, gy, mg = image_gradients(img)
         return _Prepared(frame, img, gx, gy, mg)
 
-    def _intr(self):
-        k = self.intrinsics
-        return float(k.fx), float(k.fy), float(k.cx), float(k.cy)
-
     @property
     def frame(self) -> MapFrame | None:
         """The frame the current map lives in."""
@@ -201,7 +200,7 @@ class Mapper:
 
     # ------------------------------------------------------------------ initialisation
     def _reset(self, prep: _Prepared) -> None:
-        self.state = _State(self.h, self.w)
+        self.state = new_state(self.h, self.w)
         self._buffer = []
         self._cur = prep
         self._iteration = 0
@@ -309,15 +308,8 @@ class Mapper:
         np.copyto(ns.pos_x, self._grid_x)   # pixels left empty keep their integer position
         np.copyto(ns.pos_y, self._grid_y)
         np.copyto(ns.blacklist, old.blacklist)   # the blacklist stays with the pixel location
-        fx, fy, cx, cy = self._intr()
-        cap = cfg.validity_max + cfg.validity_max_grad
-        res = K.propagate_kernel(
-            old.idepth_s, old.idepth_var, old.valid, old.validity, old.pos_x, old.pos_y, old.ref_id, old.skip,
-            self._cur.image, new.image, new.maxgrad, R, t, fx, fy, cx, cy, float(cfg.border),
-            float(cfg.min_grad), float(cfg.prop_diff_const) ** 2, float(cfg.prop_diff_grad_fac),
-            float(cfg.prop_merge_fac), float(cfg.propagation_sigma), float(cap),
-            ns.idepth, ns.idepth_var, ns.idepth_s, ns.var_s, ns.valid, ns.validity, ns.pos_x,
-            ns.pos_y, ns.ref_id, ns.blacklist, ns.skip)
+        res = kernels.propagate_kernel(old, self._cur.image, new.image, new.maxgrad, R, t, self._cam,
+                                       self._params, ns)
         k = cfg.blacklist_recovery_frames
         if k > 0 and self._iteration % k == 0:
             np.add(ns.blacklist, 1, out=ns.blacklist, where=ns.blacklist < 0)
@@ -326,7 +318,7 @@ class Mapper:
         stats.propagated = int(np.count_nonzero(ns.valid))
         _, stats.dropped_border, stats.dropped_intensity, stats.occluded, stats.fused_on_propagation = map(int, res)
 
-    def _reference_arrays(self):
+    def _reference_frames(self) -> RefFrames:
         n = len(self._buffer)
         slots = np.zeros(n, np.int64)
         ids = np.zeros(n, np.int64)
@@ -343,7 +335,7 @@ class Mapper:
             cs[i] = -T_ref_cur[:3, :3].T @ T_ref_cur[:3, 3]      # reference centre in the current frame
             r = float(f.tracking_residual)
             res[i] = r if np.isfinite(r) and r >= 0 else 0.0   # unknown residual: no extra geometric error
-        return slots, ids, Rs, ts, cs, res
+        return RefFrames(self._buf_images, slots, ids, Rs, ts, cs, res)
 
     def _budget_stride(self, n_cand: int) -> int:
         """Chapter 3.4: sub-sample the candidates (rotating offset) so the iteration fits the budget.
@@ -375,39 +367,27 @@ class Mapper:
         stats.stride = stride
         status = np.zeros((self.h, self.w), np.int8)
         if len(self._buffer) > 0 and self.h > 6 and self.w > 6:
-            slots, ids, Rs, ts, cs, res = self._reference_arrays()
-            fx, fy, cx, cy = self._intr()
             scratch = int(cfg.max_epl_search + cfg.min_epl_search) + 16
-            K.observe_kernel(cur.image, cur.gx, cur.gy, cur.maxgrad, self._buf_images, slots, ids,
-                             Rs, ts, cs, res, s.idepth, s.idepth_var, s.idepth_s, s.var_s, s.valid,
-                             s.validity, s.pos_x, s.pos_y, s.ref_id, s.blacklist, s.skip, fx, fy, cx, cy,
-                             self._params, int(stride), int(self._iteration % stride), scratch,
-                             status)
+            kernels.observe_kernel(cur.image, cur.gx, cur.gy, cur.maxgrad, self._reference_frames(), s, self._cam,
+                                   self._params, int(stride), int(self._iteration % stride), scratch, status)
         counts = np.bincount(status.ravel().astype(np.int64), minlength=9)
         stats.no_epipolar, stats.skipped_converged = int(counts[7]), int(counts[8])
         stats.updated, stats.created, stats.inconsistent = int(counts[1]), int(counts[2]), int(counts[3])
         stats.failed, stats.no_reference, stats.removed_gradient = int(counts[4]), int(counts[5]), int(counts[6])
 
     def _regularize(self, stats: MappingStats) -> None:
-        s, cfg = self.state, self.config
+        s = self.state
         o_valid = np.zeros_like(s.valid)
         n_before = int(np.count_nonzero(s.valid))
-        K.regularize_kernel(s.idepth, s.idepth_var, s.valid, s.validity, s.blacklist,
-                            int(cfg.reg_radius), float(cfg.reg_dist_var), float(cfg.reg_diff_fac),
-                            float(cfg.reg_validity_sum), _VAR_MODES[cfg.reg_var_mode], s.idepth_s, s.var_s,
-                            o_valid)
-        s.valid = o_valid
+        kernels.regularize_kernel(s, self._params, o_valid)
+        np.copyto(s.valid, o_valid)
         stats.removed_regularize = n_before - int(np.count_nonzero(o_valid))
 
     def _fill(self, stats: MappingStats) -> None:
-        s, cfg, cur = self.state, self.config, self._cur
+        s = self.state
         new_flag = np.zeros_like(s.valid)
-        K.fill_kernel(s.idepth, s.idepth_var, s.idepth_s, s.var_s, s.valid, s.validity, s.pos_x,
-                      s.pos_y, s.ref_id, s.blacklist, s.skip, cur.maxgrad, float(cfg.min_grad),
-                      int(cfg.min_blacklist), float(cfg.fill_validity_sum),
-                      float(cfg.unblacklist_validity_sum), float(cfg.init_var),
-                      float(cfg.fill_validity), new_flag)
-        s.valid |= new_flag
+        kernels.fill_kernel(s, self._cur.maxgrad, self._params, new_flag)
+        np.bitwise_or(s.valid, new_flag, out=s.valid)
         stats.filled = int(np.count_nonzero(new_flag))
 
     # ------------------------------------------------------------------ output
@@ -418,33 +398,6 @@ class Mapper:
         valid = s.valid != 0
         return (np.where(valid, s.idepth_s, 0.0).astype(np.float32),
                 np.where(valid, s.var_s, 0.0).astype(np.float32), valid)
-
-    def rescale(self, factor: float) -> None:
-        """Multiply every idepth by ``factor`` (variances by factor^2) and divide the translations
-        of the current frame and of every buffered frame by it (the world is rescaled about its origin)."""
-        f = float(factor)
-        if not (np.isfinite(f) and f > 0):
-            raise InputError(f"Mapper.rescale: factor must be a positive number, got {factor!r}")
-        s = self.state
-        for a in (s.idepth, s.idepth_s):
-            a *= f
-        for a in (s.idepth_var, s.var_s):
-            a *= f * f
-
-        def scaled(fr: MapFrame) -> MapFrame:
-            T = np.array(fr.T_world_cam, dtype=np.float64)
-            T[:3, 3] /= f
-            return MapFrame(fr.frame_id, fr.timestamp, fr.image, T, fr.tracking_residual)
-
-        self._buffer = [(scaled(fr), slot) for fr, slot in self._buffer]
-        if self._cur is not None:
-            self._cur = replace(self._cur, frame=scaled(self._cur.frame))
-
-    def mean_idepth(self) -> float:
-        """Mean inverse depth of the valid hypotheses (NaN when the map is empty)."""
-        s = self.state
-        v = s.valid != 0
-        return float(np.mean(s.idepth_s[v])) if np.any(v) else float("nan")
 
 
 def depth_accuracy(idepth: np.ndarray, valid: np.ndarray, depth_gt_m: np.ndarray) -> dict:
