@@ -52,7 +52,7 @@ class ARConfig:
     obstacle_step: float = param(0.3, "points higher than this above the ground vote obstacle (car lengths)", 0.0, 100.0)
     obstacle_top: float = param(4.0, "points higher than this (e.g. the ceiling) do not vote (car lengths)", 0.0, 1000.0)
     min_obstacle_votes: int = param(5, "obstacle votes a cell needs to be an obstacle", 1, 10**6)
-    obstacle_share: float = param(0.25, "share of a cell's votes that must be obstacle votes for an obstacle", 0.0, 1.0)
+    obstacle_share: float = param(0.5, "share of a cell's votes that must be obstacle votes for an obstacle", 0.0, 1.0)
     min_floor_votes: int = param(2, "floor votes a cell needs to be floor", 1, 10**6)
     floor_margin: int = param(1, "grow the seen floor by this many cells into unknown cells", 0, 100)
     wall_height: float = param(2.0, "physics height of obstacles and unknown cells (car lengths)", 0.1, 100.0)
