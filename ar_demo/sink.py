@@ -128,8 +128,8 @@ class ARSink(OutputSink):
                 self.car_path.append(world.physics.car_state().T_phys_base[:3, 3].copy())
                 self.car_poses.append((ts, T_car))
                 if self._car_file is not None:
-                    from lite_vo.sinks import _tum_line
-                    self._car_file.write(_tum_line(ts, T_car))
+                    from lite_vo.sinks import tum_line
+                    self._car_file.write(tum_line(ts, T_car))
         self.video.put(self._job(event, T, the_map))
         self._frames += 1
         self.times["frame"].append((time.perf_counter() - t_frame) * 1e3)

@@ -32,7 +32,8 @@ from .session import FrameEvent, OutputSink, PublishedMap, RunEnd, SessionInfo
 log = logging.getLogger(__name__)
 
 
-def _tum_line(t: float, T: np.ndarray) -> str:
+def tum_line(t: float, T: np.ndarray) -> str:
+    """One TUM line ``t tx ty tz qx qy qz qw`` (newline included) of a 4x4 pose."""
     r = tum_from_pose(np.asarray(T, dtype=np.float64)[None])[0]
     return f"{t:.6f} {r[0]:.9g} {r[1]:.9g} {r[2]:.9g} {r[3]:.9f} {r[4]:.9f} {r[5]:.9f} {r[6]:.9f}\n"
 
@@ -58,7 +59,7 @@ class TrajectorySink(OutputSink):
         if r.lost or r.T_world_cam is None:
             return
         self.poses[r.index] = (r.timestamp, r.T_world_cam)
-        self._file.write(_tum_line(r.timestamp, r.T_world_cam))   # line-buffered: one whole line per write
+        self._file.write(tum_line(r.timestamp, r.T_world_cam))   # line-buffered: one whole line per write
 
     def on_corrections(self, corrections: dict) -> None:
         changed = False
