@@ -182,7 +182,9 @@ class PhysicsWorld:
     client: int = -1
     world_body: int = -1
     world_shape: int = -1
-    ground_body: int = -1
+    field_body: int = -1
+    field_shape: int = -1
+    field_updates: int = 0
     car: int = -1
     car_length: float = 0.0
     autopilot: Autopilot | None = None
@@ -202,11 +204,29 @@ class PhysicsWorld:
         pb.setAdditionalSearchPath(self._data, physicsClientId=self.client)
 
     # ------------------------------------------------------------------ world
-    def add_ground_slab(self, half_extent: float) -> None:
-        """A thin static box whose top is the ground plane (z = 0), ``half_extent`` wide each way."""
+    def set_height_field(self, heights: np.ndarray, cell: float) -> None:
+        """The static world as a height field (``heights[ix, iy]``, physics units; vertex ``(ix, iy)``
+        at ``((ix + 0.5 - n/2) cell, (iy + 0.5 - n/2) cell)``). The first call makes the one body,
+        later calls replace its shape in place (``replaceHeightfieldIndex``): no body or shape per
+        update. The height range must stay the same (see :mod:`ar_demo.heightfield`)."""
         pb, c = self._pb, self.client
-        shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=[half_extent, half_extent, 0.05], physicsClientId=c)
-        self.ground_body = pb.createMultiBody(0, shape, -1, [0, 0, -0.05], physicsClientId=c)
+        h = np.asarray(heights, dtype=np.float64)
+        n0, n1 = h.shape
+        kw = dict(shapeType=pb.GEOM_HEIGHTFIELD, meshScale=[cell, cell, 1.0],
+                  heightfieldData=np.ascontiguousarray(h.T).ravel().tolist(),
+                  numHeightfieldRows=n0, numHeightfieldColumns=n1, physicsClientId=c)
+        if self.field_body < 0:
+            self.field_shape = pb.createCollisionShape(**kw)
+            self.field_body = pb.createMultiBody(0, self.field_shape, physicsClientId=c)
+            self._field_range = (float(h.min()), float(h.max()))
+            pb.resetBasePositionAndOrientation(self.field_body, [0, 0, 0.5 * sum(self._field_range)], [0, 0, 0, 1],
+                                               physicsClientId=c)
+        else:
+            if (float(h.min()), float(h.max())) != self._field_range:
+                raise ValueError("set_height_field: the height range must not change between updates")
+            pb.createCollisionShape(replaceHeightfieldIndex=self.field_shape, **kw)
+        self.world_body = self.field_body
+        self.field_updates += 1
 
     def set_world_mesh(self, vertices_world: np.ndarray, faces: np.ndarray) -> None:
         """Replace the static world body by the mesh (world coordinates): add new, remove old."""
@@ -239,6 +259,7 @@ class PhysicsWorld:
             a, b = pb.getAABB(self.car, link, physicsClientId=c)
             lo, hi = np.minimum(lo, a), np.maximum(hi, b)
         self.car_length = float(hi[0] - lo[0])
+        self._footprint = np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]])
         ground = self.ray_down(xy_phys)
         z = (0.0 if ground is None else ground) + self.cfg.spawn_height * self.car_length
         pb.resetBasePositionAndOrientation(self.car, [float(xy_phys[0]), float(xy_phys[1]), z],
@@ -302,6 +323,10 @@ class PhysicsWorld:
 
     def visual_shapes(self) -> list[tuple]:
         return list(self._pb.getVisualShapeData(self.car, physicsClientId=self.client))
+
+    def footprint_offset(self) -> np.ndarray:
+        """Base-frame offset of the car's footprint centre (AABB centre in x, y; lowest point in z)."""
+        return self._footprint
 
     def ray_down(self, xy_phys, z_from: float = 5.0) -> float | None:
         """Height of the first surface below ``xy_phys`` (None if nothing is hit)."""

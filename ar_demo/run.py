@@ -1,6 +1,11 @@
 """``lite-vo ar`` as a library call: the frame driver (:mod:`lite_vo.session`) with the AR sink and
 the trajectory writer, so the AR world and ``trajectory.txt`` see the same poses and corrections.
 
+Outputs (contract): next to ``DIR/NAME.mp4`` go ``DIR/trajectory.txt`` (camera, ``T_world_cam``, TUM),
+``DIR/car.txt`` (``T_world_car``, TUM, same world frame and units; origin at the centre of the car's
+footprint on its surface, x forward, z up; one line per frame with a car) and ``DIR/ar_summary.json``
+(ground source, car size, world extent, timings).
+
 Imports: numpy, lite_vo; pybullet/moderngl/trimesh through :mod:`ar_demo.sink`.
 """
 from __future__ import annotations
@@ -32,12 +37,14 @@ def sequence_fps(seq, n: int | None = None) -> float:
 def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estimate",
            max_frames: int | None = None, cfg: ARConfig | None = None, panels: bool | None = None,
            overrides=(), trajectory_out: str | Path | None = None, mesh_out: str | Path | None = None,
-           quiet: bool = True, vo_mode: str = "sync", sinks=(), calib=None, topic: str | None = None) -> dict:
+           quiet: bool = True, vo_mode: str = "sync", sinks=(), calib=None, topic: str | None = None,
+           car_out: str | Path | None = None, summary_out: str | Path | None = None) -> dict:
     """Run the AR demo on a sequence and write ``out_video`` (.mp4). Returns a summary dict.
 
     ``poses="estimate"``: the visual odometry with ``profile`` and VO ``overrides``; ``poses="gt"``:
     the ground-truth poses (the VO maps only). ``cfg``: AR settings (``ar_config(...)``).
-    ``trajectory_out``: the camera trajectory (TUM, written as the run goes).
+    ``trajectory_out`` / ``car_out`` / ``summary_out``: the camera trajectory, the car poses and the
+    summary (default: ``trajectory.txt``, ``car.txt``, ``ar_summary.json`` next to the video).
     """
     from lite_vo.sinks import ProgressSink
     cfg = cfg or ARConfig()
@@ -50,10 +57,12 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
     session = Session(sequence_path, vo_cfg, pose_source=poses, max_frames=max_frames, profile_name=profile,
                       calib=calib, topic=topic)
     fps = sequence_fps(session.sequence, max_frames)
-    ar = ARSink(cfg, out_video, fps=fps, metric=True if poses == "gt" else None, mesh_out=mesh_out)
-    own = [ar]
-    if trajectory_out is not None:
-        own.append(TrajectorySink(trajectory_out, comment="T_world_cam"))
+    out_dir = Path(out_video).parent
+    car_out = out_dir / "car.txt" if car_out is None else car_out
+    trajectory_out = out_dir / "trajectory.txt" if trajectory_out is None else trajectory_out
+    summary_out = out_dir / "ar_summary.json" if summary_out is None else Path(summary_out)
+    ar = ARSink(cfg, out_video, fps=fps, metric=True if poses == "gt" else None, mesh_out=mesh_out, car_out=car_out)
+    own = [ar, TrajectorySink(trajectory_out, comment="T_world_cam")]
     if not quiet:
         own.append(ProgressSink())
     session.sinks = own + list(sinks)
@@ -61,7 +70,11 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
     summary = dict(ar.summary)
     summary.update({"sequence": str(sequence_path), "poses": poses, "profile": profile,
                     "status": res.status, "frames_in": res.end.frames_read, "frames_with_pose": len(res.poses),
-                    "wall_s": time.perf_counter() - t_start})
+                    "wall_s": time.perf_counter() - t_start,
+                    "outputs": {"video": str(out_video), "trajectory": str(trajectory_out), "car": str(car_out),
+                                "summary": str(summary_out)}})
+    summary_out.parent.mkdir(parents=True, exist_ok=True)
+    summary_out.write_text(json.dumps(summary, indent=2, default=float) + "\n")
     return summary
 
 
@@ -75,7 +88,7 @@ def write_summary(summary: dict, out_dir: Path, name: str = "summary") -> None:
              f"video: {summary.get('video')} ({summary.get('frames_written')} frames, {summary.get('video_size')})",
              f"frames with a pose: {summary.get('frames_with_pose')} of {summary.get('frames_in')}",
              f"ground plane: from {ground.get('source', 'nowhere (the world never started)')}",
-             f"world models built: {summary.get('world_models_built')}, swaps: {summary.get('world_swaps')}",
+             f"world models built: {summary.get('world_models_built')}, updates: {summary.get('world_updates')}",
              f"car: distance {summary.get('car_distance_phys', 0):.2f} m (physics units), "
              f"collisions {summary.get('car_collisions')}, reversals {summary.get('car_reversals')}"]
     for k in ("world_model", "simulation", "render", "frame"):

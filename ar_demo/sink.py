@@ -1,8 +1,8 @@
 """The AR demo as a plain output sink of the frame driver (:mod:`lite_vo.session`).
 
 :class:`ARSink` wires the parts: every published map goes to the :class:`~ar_demo.world.ARWorld`
-(ground plane, collision world, car) once it supports a ground plane, and every k-th frame a newer
-map rebuilds the collision mesh; each frame advances the simulation by the frame's time and hands
+(ground plane, persistent world, car) once it supports a ground plane, and every k-th frame a newer
+map and the VO's keyframes (``SessionInfo.keyframes``) rebuild the world; each frame advances the simulation by the frame's time and hands
 an immutable :class:`~ar_demo.video.RenderJob` to the :class:`~ar_demo.video.ARVideo` (the render
 thread draws it over the full-resolution rectified camera image, colour when the source is colour).
 ``on_finish`` closes everything and fills :attr:`ARSink.summary`.
@@ -23,6 +23,7 @@ from lite_vo.timing import timing_stats
 
 from .config import ARConfig
 from .video import ARVideo, FrameComposer, RenderJob
+from .heightfield import field_mesh
 from .world import ARWorld
 
 
@@ -31,13 +32,18 @@ class ARSink(OutputSink):
     wants_image = True
 
     def __init__(self, cfg: ARConfig, out_video, fps: float = 30.0, metric: bool | None = None,
-                 renderer=None, mesh_out=None) -> None:
+                 renderer=None, mesh_out=None, car_out=None) -> None:
         self.cfg = cfg
         self.out_video = Path(out_video)
         self.fps = float(cfg.video_fps or fps)
         self._metric_auto = metric is None and not cfg.metric
         self.metric = cfg.metric if metric is None else bool(metric)
         self.mesh_out = Path(mesh_out) if mesh_out else None
+        self.car_out = Path(car_out) if car_out else None
+        self.keyframes = None
+        self.car_poses: list[tuple[float, np.ndarray]] = []   # (t, T_world_car) per frame with a car
+        self._car_file = None
+        self._field_mesh = None
         self._renderer = renderer
         self.world: ARWorld | None = None
         self.video: ARVideo | None = None
@@ -58,6 +64,11 @@ class ARSink(OutputSink):
         from .render import ARRenderer, load_racecar_parts
         cfg = self.cfg
         self.camera = info.camera
+        self.keyframes = info.keyframes
+        if self.car_out is not None:
+            self.car_out.parent.mkdir(parents=True, exist_ok=True)
+            self._car_file = open(self.car_out, "w", encoding="utf-8", buffering=1)
+            self._car_file.write("# T_world_car: footprint centre on the surface, x forward, z up (TUM: t tx ty tz qx qy qz qw)\n")
         self.car_parts = load_racecar_parts()
         self.world = ARWorld(cfg, info.camera, self.metric, info.accelerometer)
 
@@ -99,26 +110,35 @@ class ARSink(OutputSink):
                 self._first_map_ts = ts
             wait = self.cfg.start_after_s if self.metric else max(self.cfg.start_after_s,
                                                                    self.cfg.start_after_monocular_s)
-            if ts - self._first_map_ts >= wait and world.start(the_map):
+            if ts - self._first_map_ts >= wait and world.start(the_map, self._keyframes()):
                 self._submitted_seq = self._map_seq
         dt = 0.0 if self._prev_ts is None else max(0.0, ts - self._prev_ts)
         self._prev_ts = ts
         if world.started:
             if (self._frames % self.cfg.world_update_every == 0 and the_map is not None
                     and self._map_seq != self._submitted_seq):
-                world.submit(the_map)
+                world.submit(the_map, self._keyframes())
                 self._submitted_seq = self._map_seq
             world.swap_in()
             t0 = time.perf_counter()
             world.step(dt, T)
             self.times["simulation"].append((time.perf_counter() - t0) * 1e3)
-            self.car_path.append(world.physics.car_state().T_phys_base[:3, 3].copy())
+            T_car = world.car_pose_world()
+            if T_car is not None:
+                self.car_path.append(world.physics.car_state().T_phys_base[:3, 3].copy())
+                self.car_poses.append((ts, T_car))
+                if self._car_file is not None:
+                    from lite_vo.sinks import tum_line
+                    self._car_file.write(tum_line(ts, T_car))
         self.video.put(self._job(event, T, the_map))
         self._frames += 1
         self.times["frame"].append((time.perf_counter() - t_frame) * 1e3)
 
     def on_finish(self, end: RunEnd) -> None:
         world = self.world
+        if self._car_file is not None:
+            self._car_file.close()
+            self._car_file = None
         if world is None:                        # never started
             return
         try:
@@ -130,6 +150,18 @@ class ARSink(OutputSink):
             world.close()
 
     # ------------------------------------------------------------------ helpers
+    def _world_mesh(self):
+        """The persistent world as triangles for the panel (made again only when the field changed)."""
+        field = self.world.field
+        if field is None:
+            return None
+        if self._field_mesh is None or self._field_mesh[0] is not field:
+            self._field_mesh = (field, field_mesh(field, self.world.physics.frame))
+        return self._field_mesh[1]
+
+    def _keyframes(self) -> list:
+        return self.keyframes.current() if self.keyframes is not None else []
+
     def _background(self, event: FrameEvent) -> np.ndarray:
         img = event.image
         if img is None:                          # only the mapping-resolution image: upsample it
@@ -145,13 +177,14 @@ class ARSink(OutputSink):
         world = self.world
         mesh = world.model.mesh if world.model is not None else None
         objects = []
-        if T is not None and world.started and world.physics.car >= 0:
+        if T is not None and world.has_car:
             objects = car_objects(self.car_parts, world.physics.link_poses_phys(), world.physics.frame.S_world_phys)
         depth = world.scene_depth or 1.0
         return RenderJob(
             background=self._background(event), T_world_cam=T,
             near_far=(self.cfg.near_rel * depth, self.cfg.far_rel * depth),
             occluder=(mesh.vertices_world, mesh.faces) if mesh is not None else None,
+            world_mesh=self._world_mesh() if self.cfg.panels else None,
             objects=objects, idepth=the_map.idepth if (the_map is not None and self.cfg.panels) else None,
             ground=world.ground, scene_depth=world.scene_depth)
 
@@ -172,8 +205,19 @@ class ARSink(OutputSink):
                 "source": world.ground.source, "normal_world": world.ground.normal_world.tolist(),
                 "height": world.ground.height},
             "physics_scale": None if physics is None else physics.frame.scale,
+            "car_size": None if world.car_length_world is None else {
+                "length": world.car_length_world, "units": "m" if self.metric else "world units (monocular)",
+                "rule": "car_length_m (metric run)" if self.metric else
+                f"{self.cfg.car_length_rel_height} x camera height above the ground plane"},
+            "camera_height": world.camera_height,
+            "world_extent": None if world.field is None else world.field.extent(1.0 / physics.frame.scale),
+            "car_frames": len(self.car_poses),
+            "car_spawns": world.spawns,
+            "car_spawn_reasons": dict(world.respawn_reasons),
+            "keyframes": None if self.keyframes is None else len(self.keyframes),
+            "keyframe_bytes": None if self.keyframes is None else self.keyframes.nbytes,
             "world_models_built": len(world.build_ms),
-            "world_swaps": 0 if physics is None else physics.world_swaps,
+            "world_updates": 0 if physics is None else physics.field_updates,
             "car_distance_phys": float(np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1).sum()) if len(path) > 1 else 0.0,
             "car_reversals": 0 if ap is None else ap.reversals,
             "car_collisions": 0 if physics is None else physics.collisions,

@@ -131,6 +131,7 @@ class RenderJob:
     idepth: np.ndarray | None              # the semi-dense map for the side panel
     ground: Any = None                     # GroundPlane
     scene_depth: float | None = None
+    world_mesh: tuple | None = None        # (vertices_world, faces) of the persistent world (panel)
 
 
 def look_at(eye, target, up) -> np.ndarray:
@@ -169,12 +170,13 @@ class FrameComposer:
         pw, ph = panel_size(self.intr.width, self.intr.height)
         depth_panel = colorize_idepth(job.idepth if job.idepth is not None else np.full((ph, pw), np.nan), (pw, ph))
         depth_panel = label(depth_panel, "semi-dense inverse depth")
-        mesh_panel = label(self._mesh_panel(renderer, job, pw, ph), "collision mesh")
+        mesh_panel = label(self._mesh_panel(renderer, job, pw, ph), "persistent world (seen floor, obstacles)")
         return compose_panels(main, depth_panel, mesh_panel)
 
     def _mesh_panel(self, renderer, job: RenderJob, pw, ph) -> np.ndarray:
         T, ground = job.T_world_cam, job.ground
-        if job.occluder is None or T is None or ground is None:
+        mesh = job.world_mesh if job.world_mesh is not None else job.occluder
+        if mesh is None or T is None or ground is None or len(mesh[1]) == 0:
             return np.zeros((ph, pw, 3), np.uint8)
         up = ground.normal_world
         C = T[:3, 3]
@@ -205,7 +207,7 @@ class FrameComposer:
         segs = []
         for i in range(4):
             segs += [C, pts[i], pts[i], pts[(i + 1) % 4]]
-        verts, faces = job.occluder
+        verts, faces = mesh
         return renderer.render(intr, Tv, near, far * 2, background=None,
                                shaded_meshes=[("panel_mesh", verts, faces, (0.55, 0.75, 0.55))],
                                objects=job.objects, lines=[(np.array(segs), (1.0, 0.9, 0.2))],

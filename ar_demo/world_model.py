@@ -1,6 +1,7 @@
-"""World model of the AR demo: semi-dense map -> in-painted low-resolution grid -> collision mesh,
-built synchronously (:func:`build_world_model`) or in a worker thread (:class:`AsyncWorldModelBuilder`,
-Fig. 5.7: updated asynchronously at a lower rate than tracking).
+"""World model of the AR demo: semi-dense map -> in-painted low-resolution grid -> mesh (occlusion),
+plus the height field fused over the keyframes (:mod:`ar_demo.heightfield`, collision), built
+synchronously (:func:`build_world`) or in a worker thread (:class:`AsyncWorldModelBuilder`, Fig. 5.7:
+updated asynchronously at a lower rate than tracking).
 
 Thread ownership of :class:`AsyncWorldModelBuilder`:
 * caller thread: ``submit`` (replaces any pending job: only the newest map matters), ``poll``
@@ -34,7 +35,21 @@ class WorldModel:
     inpaint: InpaintResult
     mesh: CollisionMesh
     build_ms: float
-    stage_ms: dict | None = None      # "reduce", "inpaint", "mesh"
+    stage_ms: dict | None = None      # "reduce", "inpaint", "mesh", "fuse"
+    field: object = None              # ar_demo.heightfield.HeightField fused over the keyframes
+
+
+def build_world(published, keyframes, ground: GroundPlane, cfg, fusion) -> WorldModel:
+    """The newest map's in-painted mesh (occlusion in the video) and the height field fused over
+    ``keyframes`` and that map (the collision world)."""
+    t0 = time.perf_counter()
+    model = build_world_model(published.idepth, published.idepth_var, published.camera, published.T_world_cam,
+                              ground, cfg, published.frame_index, published.timestamp)
+    t1 = time.perf_counter()
+    model.field = fusion.fuse(keyframes, extra=[published])
+    model.stage_ms["fuse"] = (time.perf_counter() - t1) * 1e3
+    model.build_ms = (time.perf_counter() - t0) * 1e3
+    return model
 
 
 def build_world_model(idepth: np.ndarray, idepth_var: np.ndarray, intrinsics: PinholeIntrinsics,
@@ -61,9 +76,10 @@ def build_world_model(idepth: np.ndarray, idepth_var: np.ndarray, intrinsics: Pi
 class AsyncWorldModelBuilder:
     """Builds world models in one worker thread; the newest submitted job wins."""
 
-    def __init__(self, cfg, ground: GroundPlane):
+    def __init__(self, cfg, ground: GroundPlane, fusion):
         self.cfg = cfg
         self.ground = ground
+        self.fusion = fusion                    # owned by the worker thread from now on
         self._cond = threading.Condition()
         self._job: tuple | None = None          # guarded by _cond
         self._result: WorldModel | None = None  # guarded by _cond
@@ -75,9 +91,9 @@ class AsyncWorldModelBuilder:
         self._thread = threading.Thread(target=self._run, name="ar-world-model", daemon=True)
         self._thread.start()
 
-    def submit(self, idepth, idepth_var, intrinsics, T_world_cam, frame_id=-1, timestamp=0.0) -> None:
-        job = (np.array(idepth, dtype=np.float64), np.array(idepth_var, dtype=np.float64), intrinsics,
-               np.array(T_world_cam, dtype=np.float64), frame_id, timestamp)
+    def submit(self, published, keyframes) -> None:
+        """A job: the newest map and a keyframe snapshot (both immutable, so they are not copied)."""
+        job = (published, list(keyframes))
         with self._cond:
             if self._job is not None:
                 self.dropped += 1
@@ -107,7 +123,7 @@ class AsyncWorldModelBuilder:
                 job, self._job = self._job, None
                 self.busy = True
             try:
-                model = build_world_model(*job[:4], self.ground, self.cfg, job[4], job[5])
+                model = build_world(job[0], job[1], self.ground, self.cfg, self.fusion)
             except BaseException as err:  # handed to the caller by poll()
                 model = None
                 with self._cond:

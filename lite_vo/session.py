@@ -61,6 +61,7 @@ class SessionInfo:
     start_frame: int = 0
     max_frames: int | None = None
     has_depth: bool = False
+    keyframes: Any = None                  # the VO's lite_vo.keyframes.KeyframeStore (read only)
 
 
 @dataclass(frozen=True)
@@ -235,7 +236,7 @@ class Session:
             camera=self._full_resolution().intrinsics if want_image else vo.map_intrinsics,
             map_camera=vo.map_intrinsics, accelerometer=getattr(seq, "accelerometer", None),
             depth_source=self.depth_source, pose_source=self.pose_source, start_frame=self.start_frame,
-            max_frames=self.max_frames, has_depth=bool(seq.has_depth))
+            max_frames=self.max_frames, has_depth=bool(seq.has_depth), keyframes=vo.keyframes)
         self._fan_out("on_start", info)
         tracked: dict[int, tuple[float, np.ndarray]] = {}
         events: list[dict] = []
@@ -269,7 +270,9 @@ class Session:
                     if T_given is None:
                         vo.note_dropped()
                         continue
-                res = vo.process(fr.image, fr.timestamp, depth=fr.depth, T_world_cam=T_given)
+                color = getattr(fr, "color", None)     # the VO keeps colour for its keyframes
+                res = vo.process(fr.image if color is None else color, fr.timestamp, depth=fr.depth,
+                                 T_world_cam=T_given)
                 last_index = fr.index
                 if res.event:
                     events.append({"frame": res.index, "t": res.timestamp, "event": res.event})

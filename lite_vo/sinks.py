@@ -5,7 +5,7 @@
   poses are corrected and once more at the end, so a killed process leaves every pose it had;
 * :class:`RunInfoSink`: ``run.json`` (written at the start with status ``running``, again at the end
   with the final status), ``timing.json``, and the depth accuracy files when the sequence has depth;
-* :class:`MapSink`: ``map.ply``, the semi-dense points of the last published map;
+* :class:`MapSink`: ``map.ply``, the whole-scene coloured point cloud of the keyframes;
 * :class:`TrajectoryExportSink`: at the end, the trajectory in KITTI format and/or as a picture
   (against the ground truth when there is one);
 * :class:`ProgressSink`: a progress bar on a terminal (tqdm), a plain line every few seconds when
@@ -32,7 +32,8 @@ from .session import FrameEvent, OutputSink, PublishedMap, RunEnd, SessionInfo
 log = logging.getLogger(__name__)
 
 
-def _tum_line(t: float, T: np.ndarray) -> str:
+def tum_line(t: float, T: np.ndarray) -> str:
+    """One TUM line ``t tx ty tz qx qy qz qw`` (newline included) of a 4x4 pose."""
     r = tum_from_pose(np.asarray(T, dtype=np.float64)[None])[0]
     return f"{t:.6f} {r[0]:.9g} {r[1]:.9g} {r[2]:.9g} {r[3]:.9f} {r[4]:.9f} {r[5]:.9f} {r[6]:.9f}\n"
 
@@ -58,7 +59,7 @@ class TrajectorySink(OutputSink):
         if r.lost or r.T_world_cam is None:
             return
         self.poses[r.index] = (r.timestamp, r.T_world_cam)
-        self._file.write(_tum_line(r.timestamp, r.T_world_cam))   # line-buffered: one whole line per write
+        self._file.write(tum_line(r.timestamp, r.T_world_cam))   # line-buffered: one whole line per write
 
     def on_corrections(self, corrections: dict) -> None:
         changed = False
@@ -204,21 +205,38 @@ class RunInfoSink(OutputSink):
 
 
 class MapSink(OutputSink):
-    """``map.ply``: the world-frame points of the last published map with their idepth variance."""
+    """``map.ply``: the whole-scene point cloud of the VO's keyframes (world frame, coloured from the
+    images, outliers removed by variance and cross-keyframe consistency, optionally one point per
+    ``voxel``; see :func:`lite_vo.keyframes.scene_cloud` for the parameters) with each point's idepth
+    variance. Without a keyframe store (a session that has none) the last published map is written."""
 
-    def __init__(self, path) -> None:
+    def __init__(self, path, voxel: float = 0.0, max_rel_std: float = 0.1, rel_tol: float = 0.03,
+                 neighbours: int = 10, min_support: int = 1, min_agree: float = 0.7) -> None:
         self.path = Path(path)
+        self.params = {"voxel": float(voxel), "max_rel_std": float(max_rel_std), "rel_tol": float(rel_tol),
+                       "neighbours": int(neighbours), "min_support": int(min_support), "min_agree": float(min_agree)}
         self.last: PublishedMap | None = None
+        self.store = None
+        self.points = 0
+
+    def on_start(self, info: SessionInfo) -> None:
+        self.store = info.keyframes
 
     def on_map(self, published: PublishedMap) -> None:
         self.last = published
 
     def on_finish(self, end: RunEnd) -> None:
-        if self.last is None:
-            pts, var = np.zeros((0, 3)), np.zeros(0)
+        if self.store is not None and len(self.store):
+            from .keyframes import scene_cloud
+            cloud = scene_cloud(self.store, **self.params)
+            pts, var, colors = cloud.points, cloud.idepth_var, cloud.colors
+        elif self.last is not None:
+            pts, var, (v, u) = self.last.points_world()
+            colors = self.last.image[v, u]
         else:
-            pts, var, _ = self.last.points_world()
-        write_ply(self.path, pts, idepth_var=var)
+            pts, var, colors = np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))
+        self.points = len(pts)
+        write_ply(self.path, pts, idepth_var=var, colors=colors)
 
 
 class TrajectoryExportSink(OutputSink):

@@ -49,6 +49,7 @@ from .config import VOConfig
 from .errors import InputError, LiteVOError
 from .geometry import inverse_se3, project_to_se3
 from .image import image_pyramid
+from .keyframes import Keyframe, KeyframeStore, PointCloud, scene_cloud
 from .mapping import MapFrame, Mapper, depth_accuracy
 from .timing import Timers
 from .tracking import Tracker, TrackingReference, depth_image_idepth
@@ -126,6 +127,7 @@ class _Frame:
     pyramid: list
     depth_m: np.ndarray | None        # at mapping resolution, 0 = invalid
     T_world_cam: np.ndarray | None = None
+    color: np.ndarray | None = None   # the input BGR image (native resolution) for colour sources
     residual: float = 0.0
     mapper: Any = None                # the mapper whose map this frame was tracked against
     sharpness: float = 1.0            # relative to the recent frames (motion blur: < 1)
@@ -203,6 +205,9 @@ class VisualOdometry:
         self._thread: threading.Thread | None = None
         self._initialized = False
         self.metric = False  # True when the map has metric scale (depth images)
+        # keyframe history (thread-safe; filled where maps are published, read by sinks)
+        self.keyframes = KeyframeStore()
+        self._scale_id = 0   # a new id for every map with a new monocular scale
         if config.system.mode == "realtime" and depth_source == "filter":
             self._thread = threading.Thread(target=self._mapping_loop, name="lite_vo-mapping", daemon=True)
             self._thread.start()
@@ -259,6 +264,10 @@ class VisualOdometry:
         pts, var, _ = ref.map.points_world()
         return pts, var
 
+    def point_cloud(self, **kw) -> PointCloud:
+        """The whole-scene point cloud of the keyframes (see :func:`lite_vo.keyframes.scene_cloud`)."""
+        return scene_cloud(self.keyframes, **kw)
+
     def close(self) -> None:
         """Stop the mapping thread (realtime mode) after it finished the pending frame."""
         if self._thread is not None:
@@ -308,7 +317,9 @@ class VisualOdometry:
 
     def _preprocess(self, image: np.ndarray, timestamp: float, depth: np.ndarray | None) -> _Frame:
         t = time.perf_counter()
+        color = None
         if image.ndim == 3:
+            color = image if image.shape[2] == 3 else None
             image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         if self._photometric is not None:
             image = self._photometric.correct(image, self._photometric.exposure_at(timestamp))
@@ -319,7 +330,7 @@ class VisualOdometry:
         self.timers.add("preprocess", (time.perf_counter() - t) * 1e3)
         if self._t0 is None:
             self._t0 = float(timestamp)
-        frame = _Frame(self._index, float(timestamp), img, pyr, depth_m, sharpness=sharp)
+        frame = _Frame(self._index, float(timestamp), img, pyr, depth_m, sharpness=sharp, color=color)
         self._index += 1
         return frame
 
@@ -328,12 +339,23 @@ class VisualOdometry:
         with self._ref_lock:
             return self._reference
 
-    def _publish(self, ref: _Reference, mapper) -> None:
+    def _publish(self, ref: _Reference, mapper, frame: _Frame) -> None:
         with self._ref_lock:
             if mapper is not self._mapper:  # a map built by a mapper that was replaced meanwhile
                 return
             self._reference = ref
             self._published.append(ref.map)
+        self._offer_keyframe(ref.map, frame)
+
+    def _offer_keyframe(self, m: PublishedMap, frame: _Frame) -> None:
+        """Keep the map as a keyframe when the camera moved enough since the last one."""
+        if not self.keyframes.wants(m.T_world_cam, self._scale_id):
+            return
+        color = None
+        if frame.color is not None:
+            color = np.dstack([self._rectifier(np.ascontiguousarray(frame.color[..., c])) for c in range(3)])
+        self.keyframes.add(Keyframe.make(m.frame_index, m.timestamp, m.T_world_cam, m.camera, m.image, m.idepth,
+                                         m.idepth_var, color, self._scale_id))
 
     def _build_reference(self, frame: _Frame, idepth, idepth_var, valid) -> _Reference:
         t = time.perf_counter()
@@ -361,7 +383,7 @@ class VisualOdometry:
         self._stop_mapping_work()
         with self._ref_lock:
             self._mapper = mapper
-        self._publish(ref, mapper)
+        self._publish(ref, mapper, frame)
 
     def _initialize(self, frame: _Frame, T_world_cam: np.ndarray, event: str) -> FrameResult:
         """(Re-)initialise the map in ``frame`` (depth image or random depth) with a new mapper."""
@@ -373,6 +395,8 @@ class VisualOdometry:
         frame.affine = self._monitor.affine          # the new map keeps the brightness chain
         mf = MapFrame(frame.index, frame.timestamp, frame.image, T_world_cam, 0.0, frame.affine, frame.noise_sigma)
         mapper = self._new_mapper()
+        if self._initialized and not use_depth and self.pose_source == "estimate":
+            self._scale_id += 1             # a new monocular map: a new scale
         if use_depth:
             mapper.initialize_from_depth(mf, frame.depth_m)
         else:
@@ -480,6 +504,7 @@ class VisualOdometry:
             mapper.update(MapFrame(idx, ts, img, T, 0.0, aff.get(idx, (1.0, 0.0))))
         T_world_cur = project_to_se3(boot_world @ inverse_se3(boot.T_cur_init))
         frame.T_world_cam = T_world_cur
+        self._scale_id += 1                 # the two-view map has another scale than the random one
         self._install_mapper(mapper, frame)
         self._accept_pose(T_world_cur, smooth=False)
         self.counts["tracked"] += 1
@@ -491,6 +516,7 @@ class VisualOdometry:
                 continue
             T = boot.T_j_init.get(idx)
             corrections[idx] = None if T is None else project_to_se3(boot_world @ inverse_se3(T))
+        self.keyframes.apply_corrections(corrections)
         quality = {**quality, "init": "bootstrap", "reason": boot.reason}
         idepth, _, valid = mapper.current()
         self._record_depth_accuracy(frame, idepth, valid)
@@ -604,7 +630,7 @@ class VisualOdometry:
         ref = self._build_reference(frame, idepth, idepth_var, valid)
         self.timers.add("mapping", (time.perf_counter() - t) * 1e3)
         self.counts["mapped"] += 1
-        self._publish(ref, mapper)
+        self._publish(ref, mapper, frame)
         self._record_depth_accuracy(frame, idepth, valid)
 
     def _record_depth_accuracy(self, frame: _Frame, idepth=None, valid=None) -> None:

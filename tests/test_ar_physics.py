@@ -139,20 +139,43 @@ def test_world_swap_keeps_car_state():
 
 
 def test_async_builder_matches_sync():
+    """The worker thread builds the same world (occlusion mesh and fused height field) as the
+    synchronous build from the same map and keyframes."""
+    from types import SimpleNamespace
+
+    from ar_demo.heightfield import FieldSpec, WorldFusion
+    from ar_demo.physics import racecar_length
+    from ar_demo.world_model import build_world
+    from lite_vo.keyframes import Keyframe
+
     cfg = ARConfig()
     rng = np.random.default_rng(2)
-    T = look_at([0.0, 0.1, 1.0], [2.2, 0.0, 0.0])
-    depth, _ = raycast_depth(T, INTR.K, 320, 240, boxes=[BOX])
-    idepth = idepth_from_depth(depth, rng, 0.9)
-    var = np.full(idepth.shape, 1e-4)
     ground = GroundPlane(np.array([0.0, 0.0, 1.0]), 0.0)
-    b = AsyncWorldModelBuilder(cfg, ground)
+    kfs = []
+    for i, eye in enumerate(([0.0, 0.1, 1.0], [0.2, -0.3, 1.1])):
+        T = look_at(eye, [2.2, 0.0, 0.0])
+        depth, _ = raycast_depth(T, INTR.K, 320, 240, boxes=[BOX])
+        idepth = idepth_from_depth(depth, rng, 0.9).astype(np.float32)
+        var = np.where(np.isfinite(idepth), 1e-4, np.nan).astype(np.float32)
+        kfs.append(Keyframe.make(i, i / 30, T, INTR, np.zeros((240, 320), np.uint8), idepth, var))
+    published = SimpleNamespace(frame_index=3, timestamp=0.1, idepth=kfs[-1].idepth, idepth_var=kfs[-1].idepth_var,
+                                camera=INTR, T_world_cam=kfs[-1].T_world_cam)
+    L = racecar_length()
+    frame = PhysicsFrame(np.eye(3), np.zeros(3), L / 0.3)
+
+    def fusion():
+        spec = FieldSpec(cfg.field_cells, cfg.field_cell * L, cfg.wall_height * L, -cfg.floor_band * L)
+        return WorldFusion(cfg, ground, frame, spec, L)
+
+    b = AsyncWorldModelBuilder(cfg, ground, fusion())
     try:
-        b.submit(idepth, var, INTR, T, frame_id=3)
-        b.wait_idle(10)
+        b.submit(published, kfs)
+        b.wait_idle(30)
         m = b.poll()
         assert m is not None and m.frame_id == 3 and b.poll() is None
-        ref = build_world_model(idepth, var, INTR, T, ground, cfg)
+        ref = build_world(published, kfs, ground, cfg, fusion())
         np.testing.assert_allclose(m.mesh.vertices_world, ref.mesh.vertices_world)
+        np.testing.assert_array_equal(m.field.state, ref.field.state)
+        assert (m.field.state != 0).sum() > 50            # the fused field is not empty
     finally:
         b.close()

@@ -30,9 +30,9 @@ def renderer():
 
 @pytest.fixture(scope="module")
 def car_scene():
-    """A racecar resting on the ground slab (physics frame = world, z up), and its parts."""
+    """A racecar resting on a flat height field (physics frame = world, z up), and its parts."""
     w = PhysicsWorld(ARConfig(), PhysicsFrame(np.eye(3), np.zeros(3), 1.0))
-    w.add_ground_slab(5.0)
+    w.set_height_field(np.zeros((41, 41)), 0.25)          # floor 10 m x 10 m around the origin
     w.spawn_car([1.5, 0.2], 0.7)
     for _ in range(30):
         w.step(1 / 30, autopilot=False)

@@ -33,7 +33,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--panels", action="store_true",
                    help="add side panels: semi-dense depth map and collision mesh from another viewpoint")
     p.add_argument("--mesh", type=Path, default=None, help="also export the last collision mesh (.obj or .ply)")
-    p.add_argument("--trajectory", type=Path, default=None, help="also write the camera trajectory (TUM format)")
+    p.add_argument("--trajectory", type=Path, default=None,
+                   help="camera trajectory (TUM format; default: trajectory.txt next to the video, with car.txt "
+                        "and ar_summary.json)")
     p.add_argument("--calib", type=Path, default=None,
                    help="calibration file for the source (calib.txt, OpenCV YAML, Kalibr or ROS camera_info YAML)")
     p.add_argument("--topic", default=None, help="image topic of a ROS bag (needed when it has several)")
@@ -67,7 +69,8 @@ def run(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".mp4":
         raise InputError(f"{out}: the output video must end in .mp4")
-    for path in (out, args.mesh, args.trajectory):
+    traj = args.trajectory if args.trajectory is not None else out.parent / "trajectory.txt"
+    for path in (out, args.mesh, traj, out.parent / "car.txt", out.parent / "ar_summary.json"):
         if path is not None:
             check_output_file(path, args.force)
     if args.mesh is not None and Path(args.mesh).suffix.lower() not in (".obj", ".ply"):
@@ -85,5 +88,6 @@ def run(args) -> int:
     print(f"{out}: {summary['frames_written']} frames {summary['video_size'][0]}x{summary['video_size'][1]}, "
           f"{summary['frames_with_pose']} with a pose; world model {t['world_model']['median']:.1f} ms, "
           f"simulation {t['simulation']['median']:.1f} ms, rendering {t['render']['median']:.1f} ms (medians); "
-          f"car: {summary['car_collisions']} collisions, {summary['car_reversals']} reversals")
+          f"car: {summary['car_collisions']} collisions, {summary['car_reversals']} reversals; "
+          f"wrote {out.parent / 'car.txt'}, {traj}, {out.parent / 'ar_summary.json'}")
     return 0

@@ -1,0 +1,327 @@
+"""Keyframe history: a bounded, thread-safe store of keyframes, and the whole-scene point cloud.
+
+A :class:`Keyframe` is an immutable snapshot of a published map (pose, grey image, colour image when
+the source has colour, converged inverse depth and variance at mapping resolution). The
+:class:`KeyframeStore` is owned by :class:`~lite_vo.system.VisualOdometry` (which offers it every
+published map) and read by everyone else: the whole-scene map (:func:`scene_cloud`, ``map.ply``), the
+persistent AR world and, later, relocalisation.
+
+* **When a map becomes a keyframe**: the camera moved more than ``min_translation_rel`` times the map's
+  median depth or turned more than ``min_rotation_deg`` since the newest keyframe, or the map has a new
+  scale (a new monocular map).
+* **Memory bound**: at most ``max_bytes`` (and ``max_keyframes``). When a new keyframe does not fit,
+  keyframes are thinned in this order: those of an older monocular scale (they cannot be fused with the
+  current map), then the most *redundant* one (the smallest sum of pose distances to its two nearest keyframes;
+  ties: the oldest). The newest keyframe is never removed, so the store keeps covering the whole scene
+  rather than only the recent past.
+* **Pose corrections** (two-view bootstrap, relocalisation) replace the moved keyframes by copies with
+  the corrected pose (``None`` removes a keyframe).
+
+Thread safety: every method takes the store's lock; keyframes are frozen dataclasses with read-only
+arrays, so a snapshot (a list) can be used without the lock while the store moves on.
+
+Imports: numpy, lite_vo (camera, geometry) only.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .camera import PinholeIntrinsics
+from .geometry import inverse_se3, transform_points
+
+
+def _frozen(a: np.ndarray | None, dtype=None) -> np.ndarray | None:
+    if a is None:
+        return None
+    out = np.array(a, dtype=dtype, copy=True)
+    out.setflags(write=False)
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Keyframe:
+    """One keyframe (read-only arrays at mapping resolution; ``idepth`` NaN where empty)."""
+    index: int                     # frame index in the run
+    timestamp: float
+    T_world_cam: np.ndarray        # (4, 4)
+    camera: PinholeIntrinsics      # mapping-resolution intrinsics
+    image: np.ndarray              # uint8 (H, W) grey
+    idepth: np.ndarray             # float32 (H, W), NaN where there is no hypothesis
+    idepth_var: np.ndarray         # float32 (H, W), NaN where there is no hypothesis
+    color: np.ndarray | None = None  # uint8 (H, W, 3) BGR, None for grey sources
+    scale_id: int = 0              # maps of different monocular scale have different ids
+    median_depth: float = field(default=float("nan"))
+
+    @classmethod
+    def make(cls, index, timestamp, T_world_cam, camera, image, idepth, idepth_var, color=None,
+             scale_id: int = 0) -> "Keyframe":
+        img = np.clip(np.asarray(image, dtype=np.float32) + 0.5, 0, 255).astype(np.uint8) \
+            if np.asarray(image).dtype != np.uint8 else image
+        d = np.asarray(idepth, dtype=np.float32)
+        ok = np.isfinite(d) & (d > 0)
+        med = float(np.median(1.0 / d[ok])) if ok.any() else float("nan")
+        col = None
+        if color is not None:
+            col = np.clip(np.asarray(color, dtype=np.float32) + 0.5, 0, 255).astype(np.uint8) \
+                if np.asarray(color).dtype != np.uint8 else color
+        return cls(int(index), float(timestamp), _frozen(T_world_cam, np.float64), camera, _frozen(img),
+                   _frozen(np.where(ok, d, np.nan), np.float32),
+                   _frozen(np.where(ok, idepth_var, np.nan), np.float32), _frozen(col), int(scale_id), med)
+
+    @property
+    def nbytes(self) -> int:
+        n = self.image.nbytes + self.idepth.nbytes + self.idepth_var.nbytes + self.T_world_cam.nbytes
+        return n + (self.color.nbytes if self.color is not None else 0)
+
+    def with_pose(self, T_world_cam: np.ndarray) -> "Keyframe":
+        return dataclasses.replace(self, T_world_cam=_frozen(T_world_cam, np.float64))
+
+    def points(self, max_rel_std: float = np.inf):
+        """Camera-frame points (N, 3), their pixels ``(v, u)`` and idepth variance (N,) of the
+        hypotheses whose relative depth standard deviation ``sqrt(var) / idepth`` is below ``max_rel_std``."""
+        d, var = self.idepth, self.idepth_var
+        ok = np.isfinite(d) & (d > 0) & np.isfinite(var)
+        if np.isfinite(max_rel_std):
+            ok &= np.sqrt(np.where(ok, var, 0.0)) < max_rel_std * np.where(ok, d, 0.0)
+        v, u = np.nonzero(ok)
+        return self.camera.unproject_idepth(u, v, d[v, u]), (v, u), var[v, u].astype(np.float64)
+
+
+def pose_distance(T_a: np.ndarray, T_b: np.ndarray, scene_depth: float) -> float:
+    """Translation (in scene depths) plus rotation angle (radians) between two camera poses."""
+    dt = float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3])) / max(scene_depth, 1e-12)
+    c = (np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1.0) / 2.0
+    return dt + math.acos(float(np.clip(c, -1.0, 1.0)))
+
+
+class KeyframeStore:
+    """Bounded, thread-safe keyframe store (see the module docstring)."""
+
+    def __init__(self, max_bytes: int = 96 * 2**20, max_keyframes: int = 200, min_translation_rel: float = 0.03,
+                 min_rotation_deg: float = 3.0) -> None:
+        if max_bytes <= 0 or max_keyframes < 1:
+            raise ValueError("KeyframeStore: max_bytes and max_keyframes must be positive")
+        self.max_bytes = int(max_bytes)
+        self.max_keyframes = int(max_keyframes)
+        self.min_translation_rel = float(min_translation_rel)
+        self.min_rotation_deg = float(min_rotation_deg)
+        self._lock = threading.Lock()
+        self._kfs: list[Keyframe] = []
+        self._version = 0
+        self.added = 0
+        self.removed = 0
+
+    # ------------------------------------------------------------------ reading
+    def snapshot(self) -> list[Keyframe]:
+        """The keyframes, oldest first (an immutable snapshot)."""
+        with self._lock:
+            return list(self._kfs)
+
+    def __iter__(self):
+        return iter(self.snapshot())
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._kfs)
+
+    @property
+    def version(self) -> int:
+        """Increases with every change (add, removal, correction)."""
+        with self._lock:
+            return self._version
+
+    @property
+    def nbytes(self) -> int:
+        with self._lock:
+            return sum(k.nbytes for k in self._kfs)
+
+    @property
+    def scale_id(self) -> int | None:
+        with self._lock:
+            return self._kfs[-1].scale_id if self._kfs else None
+
+    def current(self) -> list[Keyframe]:
+        """The keyframes of the newest scale (those that can be fused with the current map)."""
+        kfs = self.snapshot()
+        return [k for k in kfs if k.scale_id == kfs[-1].scale_id] if kfs else []
+
+    # ------------------------------------------------------------------ writing
+    def wants(self, T_world_cam: np.ndarray, scale_id: int) -> bool:
+        """Whether a map seen from ``T_world_cam`` would become a keyframe (the camera moved enough)."""
+        with self._lock:
+            last = self._kfs[-1] if self._kfs else None
+        if last is None or last.scale_id != scale_id:
+            return True
+        depth = last.median_depth if np.isfinite(last.median_depth) else 1.0
+        T = np.asarray(T_world_cam, dtype=np.float64)
+        moved = np.linalg.norm(T[:3, 3] - last.T_world_cam[:3, 3]) > self.min_translation_rel * depth
+        c = (np.trace(last.T_world_cam[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0
+        turned = math.degrees(math.acos(float(np.clip(c, -1.0, 1.0)))) > self.min_rotation_deg
+        return bool(moved or turned)
+
+    def add(self, kf: Keyframe) -> None:
+        """Add a keyframe, thinning older ones to stay within the memory bound."""
+        if kf.nbytes > self.max_bytes:
+            raise ValueError(f"a keyframe of {kf.nbytes} bytes exceeds the store's bound of {self.max_bytes}")
+        with self._lock:
+            self._kfs.append(kf)
+            self.added += 1
+            while len(self._kfs) > self.max_keyframes or sum(k.nbytes for k in self._kfs) > self.max_bytes:
+                self._kfs.pop(self._thin_index())
+                self.removed += 1
+            self._version += 1
+
+    def apply_corrections(self, corrections: dict) -> int:
+        """Move keyframes whose frame was re-estimated (``{frame index: T_world_cam or None}``;
+        None removes the keyframe). Returns the number of keyframes changed."""
+        changed = 0
+        with self._lock:
+            out = []
+            for k in self._kfs:
+                if k.index in corrections:
+                    changed += 1
+                    T = corrections[k.index]
+                    if T is None:
+                        self.removed += 1
+                        continue
+                    k = k.with_pose(T)
+                out.append(k)
+            self._kfs = out
+            if changed:
+                self._version += 1
+        return changed
+
+    def _thin_index(self) -> int:
+        """Index of the keyframe to drop (lock held): an older scale first, else the most redundant."""
+        kfs = self._kfs
+        newest = kfs[-1].scale_id
+        for i, k in enumerate(kfs[:-1]):
+            if k.scale_id != newest:
+                return i
+        depth = kfs[-1].median_depth if np.isfinite(kfs[-1].median_depth) else 1.0
+        best, best_d = 0, np.inf
+        for i in range(len(kfs) - 1):        # redundancy: distance to its two nearest keyframes
+            d = sum(sorted(pose_distance(kfs[i].T_world_cam, kfs[j].T_world_cam, depth)
+                           for j in range(len(kfs)) if j != i)[:2])
+            if d < best_d - 1e-12:
+                best, best_d = i, d
+        return best
+
+
+# ----------------------------------------------------------------------------------------------
+# Whole-scene point cloud
+# ----------------------------------------------------------------------------------------------
+
+@dataclass
+class PointCloud:
+    points: np.ndarray             # (N, 3) world frame
+    colors: np.ndarray             # (N, 3) uint8 RGB
+    idepth_var: np.ndarray         # (N,)
+    keyframe: np.ndarray           # (N,) index of the keyframe each point comes from
+    pixel: np.ndarray              # (N, 2) (u, v) pixel in that keyframe (mapping resolution)
+
+
+def _neighbours(kfs: list[Keyframe], i: int, n: int, depth: float) -> list[int]:
+    d = [(pose_distance(kfs[i].T_world_cam, k.T_world_cam, depth), j) for j, k in enumerate(kfs) if j != i]
+    return [j for _, j in sorted(d)[:n]]
+
+
+def _support(kf: Keyframe, p_world: np.ndarray, rel_tol: float, win: int) -> tuple[np.ndarray, np.ndarray]:
+    """For world points: (seen: the keyframe has a hypothesis near the projection, agree: one of
+    those hypotheses has the point's inverse depth within ``rel_tol``)."""
+    n = len(p_world)
+    seen = np.zeros(n, bool)
+    agree = np.zeros(n, bool)
+    p = transform_points(inverse_se3(kf.T_world_cam), p_world)
+    c = kf.camera
+    front = p[:, 2] > 1e-9
+    if not front.any():
+        return seen, agree
+    uv = c.project(p[front])
+    ui = np.rint(uv[:, 0]).astype(np.int64)
+    vi = np.rint(uv[:, 1]).astype(np.int64)
+    ids = np.nonzero(front)[0]
+    inside = (ui >= win) & (ui < c.width - win) & (vi >= win) & (vi < c.height - win)
+    ids, ui, vi = ids[inside], ui[inside], vi[inside]
+    want = 1.0 / p[ids, 2]
+    D = kf.idepth
+    for dv in range(-win, win + 1):
+        for du in range(-win, win + 1):
+            d = D[vi + dv, ui + du]
+            ok = np.isfinite(d)
+            seen[ids[ok]] = True
+            agree[ids[ok & (np.abs(d - want) <= rel_tol * want)]] = True
+    return seen, agree
+
+
+def scene_cloud(keyframes, max_rel_std: float = 0.1, rel_tol: float = 0.03, neighbours: int = 10,
+                min_support: int = 1, min_agree: float = 0.7, window: int = 1, voxel: float = 0.0) -> PointCloud:
+    """All keyframes' converged points in the world frame, coloured from their images.
+
+    Outliers are removed twice: by variance (relative depth standard deviation below ``max_rel_std``)
+    and by cross-keyframe consistency: a point is kept when at least ``min_support`` of its
+    ``neighbours`` nearest keyframes (by pose) have a hypothesis within ``window`` pixels of its
+    projection whose inverse depth agrees within ``rel_tol``, and at least ``min_agree`` of the
+    neighbours that have a hypothesis there agree (the others contradict the point). ``voxel > 0`` (world units) averages
+    the points (and colours) per voxel. Only keyframes of the newest scale are used.
+    """
+    kfs = keyframes.current() if isinstance(keyframes, KeyframeStore) else list(keyframes)
+    if kfs:
+        kfs = [k for k in kfs if k.scale_id == kfs[-1].scale_id]
+    pts_all, col_all, var_all, kf_all, px_all = [], [], [], [], []
+    depths = [k.median_depth for k in kfs if np.isfinite(k.median_depth)]
+    depth = float(np.median(depths)) if depths else 1.0
+    for i, kf in enumerate(kfs):
+        p_cam, (v, u), var = kf.points(max_rel_std)
+        if len(u) == 0:
+            continue
+        p_world = transform_points(kf.T_world_cam, p_cam)
+        if min_support > 0 and len(kfs) > 1:
+            count = np.zeros(len(u), np.int64)
+            seen_n = np.zeros(len(u), np.int64)
+            for j in _neighbours(kfs, i, neighbours, depth):
+                seen, agree = _support(kfs[j], p_world, rel_tol, window)
+                count += agree
+                seen_n += seen
+            keep = (count >= min_support) & (count >= min_agree * seen_n)
+            p_world, u, v, var = p_world[keep], u[keep], v[keep], var[keep]
+        if kf.color is not None:
+            col = kf.color[v, u][:, ::-1]                   # BGR -> RGB
+        else:
+            col = np.repeat(kf.image[v, u][:, None], 3, axis=1)
+        pts_all.append(p_world)
+        col_all.append(col)
+        var_all.append(var)
+        kf_all.append(np.full(len(u), kf.index))
+        px_all.append(np.stack([u, v], axis=1))
+    if not pts_all:
+        return PointCloud(np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0), np.zeros(0, np.int64),
+                          np.zeros((0, 2), np.int64))
+    cloud = PointCloud(np.concatenate(pts_all), np.concatenate(col_all).astype(np.uint8), np.concatenate(var_all),
+                       np.concatenate(kf_all), np.concatenate(px_all))
+    return voxel_downsample(cloud, voxel) if voxel > 0 else cloud
+
+
+def voxel_downsample(cloud: PointCloud, voxel: float) -> PointCloud:
+    """One point per ``voxel``-sized cell: the mean position and colour, the smallest variance."""
+    if len(cloud.points) == 0:
+        return cloud
+    key = np.floor(cloud.points / voxel).astype(np.int64)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    m = len(counts)
+    pts = np.zeros((m, 3))
+    col = np.zeros((m, 3))
+    np.add.at(pts, inv, cloud.points)
+    np.add.at(col, inv, cloud.colors.astype(np.float64))
+    var = np.full(m, np.inf)
+    np.minimum.at(var, inv, cloud.idepth_var)
+    first = np.zeros(m, np.int64)
+    first[inv[::-1]] = np.arange(len(inv))[::-1]
+    return PointCloud(pts / counts[:, None], np.rint(col / counts[:, None]).astype(np.uint8), var,
+                      cloud.keyframe[first], cloud.pixel[first])

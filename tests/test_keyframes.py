@@ -1,0 +1,77 @@
+"""Keyframe store: policy, memory bound on a long run, corrections, thread safety of snapshots."""
+from __future__ import annotations
+
+import numpy as np
+
+from lite_vo.camera import PinholeIntrinsics
+from lite_vo.geometry import make_pose
+from lite_vo.keyframes import Keyframe, KeyframeStore
+
+CAM = PinholeIntrinsics(60.0, 60.0, 31.5, 23.5, 64, 48)
+
+
+def _kf(i, x, scale_id=0, rng=None):
+    rng = rng or np.random.default_rng(i)
+    d = np.full((48, 64), 0.5, np.float32)
+    d[rng.random((48, 64)) < 0.5] = np.nan
+    return Keyframe.make(i, i / 30, make_pose(np.eye(3), [x, 0, 0]), CAM, np.full((48, 64), 100, np.uint8),
+                         d, np.where(np.isfinite(d), 1e-4, np.nan), None, scale_id)
+
+
+def test_wants_a_keyframe_only_after_enough_motion():
+    st = KeyframeStore(min_translation_rel=0.1, min_rotation_deg=5)
+    assert st.wants(np.eye(4), 0)
+    st.add(_kf(0, 0.0))                                   # median depth 2: 0.2 world units to move
+    assert not st.wants(make_pose(np.eye(3), [0.1, 0, 0]), 0)
+    assert st.wants(make_pose(np.eye(3), [0.3, 0, 0]), 0)
+    assert st.wants(np.eye(4), 1)                         # a new scale always starts a keyframe
+
+
+def test_memory_stays_within_bound_on_a_long_run():
+    one = _kf(0, 0.0).nbytes
+    st = KeyframeStore(max_bytes=20 * one + 10, max_keyframes=1000)
+    for i in range(500):                                  # a long run along a line, back and forth
+        st.add(_kf(i, float(np.sin(i / 40.0)) * 5))
+        assert st.nbytes <= st.max_bytes
+    assert len(st) == 20 and st.added == 500 and st.removed == 480
+    xs = sorted(k.T_world_cam[0, 3] for k in st)
+    assert xs[-1] - xs[0] > 8.0                           # thinning keeps the whole path, not the recent past
+    assert st.snapshot()[-1].index == 499
+
+
+def test_old_scale_thinned_first_and_corrections_move_keyframes():
+    one = _kf(0, 0.0).nbytes
+    st = KeyframeStore(max_bytes=3 * one + 10)
+    st.add(_kf(0, 0.0, scale_id=0))
+    st.add(_kf(1, 1.0, scale_id=0))
+    st.add(_kf(2, 2.0, scale_id=1))
+    st.add(_kf(3, 3.0, scale_id=1))
+    assert [k.index for k in st] == [1, 2, 3]
+    assert [k.index for k in st.current()] == [2, 3]
+    T = make_pose(np.eye(3), [7.0, 0, 0])
+    before = st.snapshot()
+    assert st.apply_corrections({2: T, 1: None, 99: T}) == 2
+    assert [k.index for k in st] == [2, 3]
+    assert st.snapshot()[0].T_world_cam[0, 3] == 7.0
+    assert before[1].T_world_cam[0, 3] == 2.0             # snapshots are immutable
+    assert not before[1].idepth.flags.writeable
+
+
+def test_vo_fills_the_store_and_session_hands_it_to_sinks(synth_small):
+    import lite_vo
+    from lite_vo.session import OutputSink, Session
+
+    class Grab(OutputSink):
+        def on_start(self, info):
+            self.store = info.keyframes
+
+    g = Grab()
+    cfg = lite_vo.load_profile("phone", ['system.init="random"'])
+    Session(synth_small, cfg, sinks=[g], pose_source="gt").run()
+    kfs = g.store.snapshot()
+    assert len(kfs) >= 3
+    idx = [k.index for k in kfs]
+    assert idx == sorted(idx)
+    for a, b in zip(kfs, kfs[1:]):                        # each keyframe moved enough from the previous one
+        assert np.linalg.norm(a.T_world_cam[:3, 3] - b.T_world_cam[:3, 3]) > 0 or \
+            not np.allclose(a.T_world_cam[:3, :3], b.T_world_cam[:3, :3])

@@ -1,0 +1,70 @@
+"""Whole-scene point cloud: colours from the right pixels, consistency filter, voxels, map.ply."""
+from __future__ import annotations
+
+import numpy as np
+
+from lite_vo.camera import PinholeIntrinsics
+from lite_vo.geometry import make_pose
+from lite_vo.keyframes import Keyframe, scene_cloud, voxel_downsample
+
+CAM = PinholeIntrinsics(50.0, 50.0, 31.5, 23.5, 64, 48)
+
+
+def _wall_kf(i, x, depth=2.0, outlier=False):
+    """A keyframe looking at the plane z = depth (world) from (x, 0, 0); colour encodes the pixel."""
+    v, u = np.mgrid[0:48, 0:64]
+    color = np.dstack([u * 3, v * 5, np.full_like(u, 200)]).astype(np.uint8)  # B = u*3, G = v*5, R = 200
+    d = np.full((48, 64), 1.0 / depth, np.float32)
+    if outlier:
+        d[10, 10] = 1.0 / (0.5 * depth)                   # one point far off the wall
+    return Keyframe.make(i, i * 0.1, make_pose(np.eye(3), [x, 0, 0]), CAM, color.mean(axis=2), d,
+                         np.full((48, 64), 1e-5, np.float32), color)
+
+
+def test_colours_come_from_the_right_pixels():
+    kfs = [_wall_kf(0, 0.0), _wall_kf(1, 0.05), _wall_kf(2, 0.1)]
+    cloud = scene_cloud(kfs)
+    assert len(cloud.points) > 3000
+    u, v = cloud.pixel[:, 0], cloud.pixel[:, 1]
+    assert np.array_equal(cloud.colors[:, 0], np.full(len(u), 200))   # RGB order: R first
+    assert np.array_equal(cloud.colors[:, 1], (v * 5).astype(np.uint8))
+    assert np.array_equal(cloud.colors[:, 2], (u * 3).astype(np.uint8))
+    # and the point of that pixel is where the pixel looks
+    kf = {k.index: k for k in kfs}
+    for j in (0, len(u) // 2, len(u) - 1):
+        k = kf[int(cloud.keyframe[j])]
+        p = cloud.points[j] - k.T_world_cam[:3, 3]
+        assert abs(CAM.fx * p[0] / p[2] + CAM.cx - u[j]) < 1e-6 and abs(p[2] - 2.0) < 1e-6
+
+
+def test_inconsistent_point_is_removed():
+    kfs = [_wall_kf(0, 0.0, outlier=True), _wall_kf(1, 0.05), _wall_kf(2, 0.1)]
+    cloud = scene_cloud(kfs)
+    assert np.all(np.abs(cloud.points[:, 2] - 2.0) < 1e-6)
+    clean = [_wall_kf(0, 0.0), _wall_kf(1, 0.05), _wall_kf(2, 0.1)]
+    assert len(scene_cloud(clean).points) == len(cloud.points) + 1         # only the outlier went
+    assert np.any(np.abs(scene_cloud(kfs, min_support=0).points[:, 2] - 1.0) < 1e-6)
+
+
+def test_voxel_downsample_averages():
+    cloud = scene_cloud([_wall_kf(0, 0.0), _wall_kf(1, 0.05)])
+    small = voxel_downsample(cloud, 0.2)
+    assert 0 < len(small.points) < len(cloud.points) / 10
+    assert np.allclose(small.points[:, 2], 2.0)
+
+
+def test_map_ply_is_the_coloured_whole_scene_and_trimesh_reads_it(synth_small, tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import trimesh
+
+    from lite_vo.io import read_ply
+    exe = Path(sys.executable).with_name("lite-vo")
+    subprocess.run([str(exe), "run", str(synth_small), "--poses", "gt", "--out", str(tmp_path / "out"), "--quiet"],
+                   check=True)
+    ply = read_ply(tmp_path / "out" / "map.ply")
+    assert "red" in ply and len(ply["x"]) > 1000
+    pc = trimesh.load(tmp_path / "out" / "map.ply")
+    assert len(pc.vertices) == len(ply["x"])
