@@ -166,6 +166,7 @@ def test_malloc_trimming_is_a_no_op_without_glibc(monkeypatch):
     monkeypatch.setattr(session, "_glibc", None)
     monkeypatch.setattr(platform, "system", lambda: "Darwin")
     assert session.trim_malloc() is False
+    monkeypatch.setattr(session, "_glibc", None)           # looked up again
     monkeypatch.setattr(platform, "system", lambda: "Linux")
     monkeypatch.setattr(platform, "libc_ver", lambda *a, **k: ("", ""))   # musl
     assert session.trim_malloc() is False
