@@ -18,8 +18,10 @@ none of them needs a lock, because none is ever called from the mapping thread.
 """
 from __future__ import annotations
 
+import ctypes
 import itertools
 import logging
+import platform
 import queue
 import threading
 import time
@@ -35,6 +37,7 @@ from .errors import InputError, Interrupted, LiteVOError
 from .io import open_sequence
 from .photometric import load_photometric
 from .progress import announce_if_slow
+from .records import PoseRecord
 from .system import FrameResult, PublishedMap, VisualOdometry
 from .warmup import CORE_KERNEL_MODULES, warmup
 
@@ -82,7 +85,7 @@ class RunEnd:
     timing: dict                           # the timing.json contract (+ wall_s, warmup_s)
     events: list                           # [{"frame", "t", "event"}, ...]
     metric: bool                           # the map has metric scale (depth init or given poses)
-    depth_accuracy_series: list = field(default_factory=list)
+    depth_accuracy_series: Any = field(default_factory=list)  # rows (dicts): a list or a records.RowRecord
     error: str | None = None
     frames_read: int = 0
 
@@ -238,7 +241,7 @@ class Session:
             depth_source=self.depth_source, pose_source=self.pose_source, start_frame=self.start_frame,
             max_frames=self.max_frames, has_depth=bool(seq.has_depth), keyframes=vo.keyframes)
         self._fan_out("on_start", info)
-        tracked: dict[int, tuple[float, np.ndarray]] = {}
+        tracked = PoseRecord()
         events: list[dict] = []
         counts = {"skipped": 0}
         realtime = cfg.system.mode == "realtime"
@@ -279,14 +282,10 @@ class Session:
                     _log_event(res, events)
                 if res.corrections:
                     for idx, T in res.corrections.items():   # earlier poses re-estimated (bootstrap)
-                        if idx in tracked:
-                            if T is None:
-                                del tracked[idx]
-                            else:
-                                tracked[idx] = (tracked[idx][0], T)
+                        tracked.correct(idx, T)
                     self._fan_out("on_corrections", dict(res.corrections))
                 if not res.lost and res.T_world_cam is not None:
-                    tracked[res.index] = (res.timestamp, res.T_world_cam)
+                    tracked.add(res.index, res.timestamp, res.T_world_cam)
                 for m in vo.take_published_maps():
                     self._fan_out("on_map", m)
                 self._fan_out("on_frame", FrameEvent(res, res.image, self._sink_image(fr) if want_image else None))
@@ -315,7 +314,7 @@ class Session:
         timing["warmup_s"] = warmup_s
         end = RunEnd(status=status, frames=frames, timing=timing, events=events,
                      metric=bool(vo.metric or self.pose_source == "gt"),
-                     depth_accuracy_series=list(vo.depth_accuracy_series), error=error, frames_read=read)
+                     depth_accuracy_series=vo.depth_accuracy_series, error=error, frames_read=read)
         finish_error = None
         for s in self.sinks:               # every sink finishes, even when one of them fails
             try:
@@ -327,8 +326,8 @@ class Session:
             raise exc
         if finish_error is not None:
             raise finish_error
-        order = sorted(tracked)
-        return SessionResult(end, [tracked[i][0] for i in order], [tracked[i][1] for i in order], info)
+        _, timestamps, poses = tracked.arrays()
+        return SessionResult(end, timestamps.tolist(), list(poses), info)
 
 
 _EVENT_TEXT = {"init": "map initialised ({init}) at frame {index}",
@@ -379,12 +378,45 @@ class _Pacing:
         return now > due + period / self.speed
 
 
-def prefetch(seq, start_frame: int, max_frames: int | None, depth: int = 4):
+# ----------------------------------------------------------------------------------------------
+# The reader thread and the allocator
+# ----------------------------------------------------------------------------------------------
+
+#: frames between two ``malloc_trim`` calls while a session reads frames (0: never)
+TRIM_EVERY = 100
+_glibc = None
+
+
+def _glibc_malloc():
+    """glibc's C library (for ``malloc_trim``), or None elsewhere (macOS, musl, Windows)."""
+    global _glibc
+    if _glibc is None:
+        _glibc = False
+        if platform.system() == "Linux" and platform.libc_ver()[0] == "glibc":
+            try:
+                libc = ctypes.CDLL(None)
+                libc.malloc_trim.argtypes = [ctypes.c_size_t]
+                _glibc = libc
+            except (OSError, AttributeError):
+                pass
+    return _glibc or None
+
+
+def trim_malloc() -> bool:
+    """Give the free memory glibc's malloc holds (in every arena) back to the system; no-op elsewhere."""
+    libc = _glibc_malloc()
+    return bool(libc.malloc_trim(0)) if libc is not None else False
+
+
+def prefetch(seq, start_frame: int, max_frames: int | None, depth: int = 4, trim_every: int | None = None):
     """Frames ``start_frame ..`` of ``seq`` decoded ahead in a reader thread (a camera driver's job).
 
     Order is unchanged, so sync runs stay deterministic; an exception in the reader is re-raised
-    in the caller.
+    in the caller. Frames are allocated in the reader thread and freed in the caller's, which
+    leaves free memory in the reader's malloc arena; with glibc, every ``trim_every`` frames
+    (default :data:`TRIM_EVERY`) the free memory of every arena is returned (:func:`trim_malloc`).
     """
+    trim_every = TRIM_EVERY if trim_every is None else trim_every
     q: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
     end = object()
@@ -406,13 +438,15 @@ def prefetch(seq, start_frame: int, max_frames: int | None, depth: int = 4):
     t = threading.Thread(target=reader, name="lite_vo-reader", daemon=True)
     t.start()
     try:
-        while True:
+        for n in itertools.count(1):
             item = q.get()
             if item is end:
                 return
             if isinstance(item, BaseException):
                 raise item
             yield item
+            if trim_every > 0 and n % trim_every == 0:
+                trim_malloc()
     finally:
         stop.set()
         while t.is_alive():

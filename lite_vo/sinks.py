@@ -27,6 +27,7 @@ from .geometry import tum_from_pose
 from .io import Trajectory, write_file_atomic, write_ply, write_trajectory
 from .io.trajectory import write_trajectory_kitti
 from .progress import Progress
+from .records import PoseRecord, RowRecord
 from .session import FrameEvent, OutputSink, PublishedMap, RunEnd, SessionInfo
 
 log = logging.getLogger(__name__)
@@ -41,14 +42,14 @@ def tum_line(t: float, T: np.ndarray) -> str:
 class TrajectorySink(OutputSink):
     """``trajectory.txt`` written as the run goes (see the module docstring).
 
-    ``poses`` (frame index -> (timestamp, T_world_cam)) is the trajectory with every correction
-    applied; lost frames are absent (a gap).
+    ``poses`` (a :class:`~lite_vo.records.PoseRecord`: frame index -> timestamp, T_world_cam) is
+    the trajectory with every correction applied; lost frames are absent (a gap).
     """
 
     def __init__(self, path, comment: str | None = None) -> None:
         self.path = Path(path)
         self.comment = comment
-        self.poses: dict[int, tuple[float, np.ndarray]] = {}
+        self.poses = PoseRecord()
         self._file = None
 
     def on_start(self, info: SessionInfo) -> None:
@@ -58,28 +59,20 @@ class TrajectorySink(OutputSink):
         r = event.result
         if r.lost or r.T_world_cam is None:
             return
-        self.poses[r.index] = (r.timestamp, r.T_world_cam)
+        self.poses.add(r.index, r.timestamp, r.T_world_cam)
         self._file.write(tum_line(r.timestamp, r.T_world_cam))   # line-buffered: one whole line per write
 
     def on_corrections(self, corrections: dict) -> None:
-        changed = False
-        for idx, T in corrections.items():
-            if idx in self.poses:
-                if T is None:
-                    del self.poses[idx]
-                else:
-                    self.poses[idx] = (self.poses[idx][0], T)
-                changed = True
-        if changed:
+        changed = [self.poses.correct(idx, T) for idx, T in corrections.items()]
+        if any(changed):
             self._rewrite()
 
     def on_finish(self, end: RunEnd) -> None:
         self._rewrite(reopen=False)
 
     def trajectory(self) -> Trajectory:
-        order = sorted(self.poses)
-        return Trajectory(np.array([self.poses[i][0] for i in order], dtype=np.float64),
-                          np.array([self.poses[i][1] for i in order], dtype=np.float64).reshape(-1, 4, 4))
+        _, timestamps, poses = self.poses.arrays()
+        return Trajectory(timestamps, poses)
 
     def _rewrite(self, reopen: bool = True) -> None:
         """All poses so far, atomically (temporary file + rename); then append from there on."""
@@ -114,23 +107,32 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-def summarize_depth_accuracy(series: list[dict], skip_s: float = 1.0) -> dict | None:
+def _columns(series, names) -> dict[str, np.ndarray]:
+    """Columns of a depth accuracy series (a RowRecord, or a list of row dicts: absent values NaN)."""
+    if isinstance(series, RowRecord):
+        return {n: series.column(n) for n in names}
+    return {n: np.array([r.get(n, np.nan) for r in series], dtype=np.float64) for n in names}
+
+
+def summarize_depth_accuracy(series, skip_s: float = 1.0) -> dict | None:
     """Contract ``depth_accuracy`` over the mapped frames after the first ``skip_s`` seconds."""
-    rows = [r for r in series if r["t"] >= skip_s and np.isfinite(r.get("median_abs_rel_error", np.nan))]
-    if not rows:
-        rows = [r for r in series if np.isfinite(r.get("median_abs_rel_error", np.nan))]
-    if not rows:
+    c = _columns(series, ("t", "density", "median_abs_rel_error", "within_5pct", "within_10pct"))
+    finite = np.isfinite(c["median_abs_rel_error"])
+    rows = finite & (c["t"] >= skip_s)
+    if not rows.any():
+        rows = finite
+    if not rows.any():
         return None
     return {
-        "density": float(np.mean([r["density"] for r in rows])),
-        "median_abs_rel_error": float(np.median([r["median_abs_rel_error"] for r in rows])),
-        "within_5pct": float(np.mean([r["within_5pct"] for r in rows])),
-        "within_10pct": float(np.mean([r["within_10pct"] for r in rows])),
-        "frames": len(rows),
+        "density": float(np.mean(c["density"][rows])),
+        "median_abs_rel_error": float(np.median(c["median_abs_rel_error"][rows])),
+        "within_5pct": float(np.mean(c["within_5pct"][rows])),
+        "within_10pct": float(np.mean(c["within_10pct"][rows])),
+        "frames": int(rows.sum()),
     }
 
 
-def plot_depth_error(series: list[dict], path: Path, title: str) -> bool:
+def plot_depth_error(series, path: Path, title: str) -> bool:
     """Depth error over time (thesis Fig. 5.8) as a PNG; False when matplotlib is missing."""
     try:
         import matplotlib
@@ -138,11 +140,11 @@ def plot_depth_error(series: list[dict], path: Path, title: str) -> bool:
         import matplotlib.pyplot as plt
     except ImportError:
         return False
-    t = [r["t"] for r in series]
+    c = _columns(series, ("t", "median_abs_rel_error", "within_10pct", "density"))
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.plot(t, [100 * r["median_abs_rel_error"] for r in series], label="median |rel. error| (%)")
-    ax.plot(t, [100 * (1 - r["within_10pct"]) for r in series], label="outside 10% (%)")
-    ax.plot(t, [100 * r["density"] for r in series], label="density (% of pixels)")
+    ax.plot(c["t"], 100 * c["median_abs_rel_error"], label="median |rel. error| (%)")
+    ax.plot(c["t"], 100 * (1 - c["within_10pct"]), label="outside 10% (%)")
+    ax.plot(c["t"], 100 * c["density"], label="density (% of pixels)")
     ax.set_xlabel("time since start (s)")
     ax.set_ylim(bottom=0)
     ax.set_title(title)
@@ -293,4 +295,6 @@ def _json_default(o):
         return o.item()
     if isinstance(o, np.ndarray):
         return o.tolist()
+    if isinstance(o, RowRecord):
+        return o.to_list()
     raise TypeError(f"not JSON serialisable: {type(o)}")

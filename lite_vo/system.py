@@ -51,11 +51,17 @@ from .geometry import inverse_se3, project_to_se3
 from .image import image_pyramid
 from .keyframes import Keyframe, KeyframeStore, PointCloud, scene_cloud
 from .mapping import MapFrame, Mapper, depth_accuracy
+from .records import RowRecord
 from .timing import Timers
 from .tracking import Tracker, TrackingReference, depth_image_idepth
 from .photometric import PhotometricCalibration, PhotometricMonitor
 
 log = logging.getLogger(__name__)
+
+
+#: the fields of a row of :attr:`VisualOdometry.depth_accuracy_series`
+DEPTH_ACCURACY_FIELDS = ("frame", "t", "scale", "density", "median_abs_rel_error", "within_5pct", "within_10pct",
+                         "compared")
 
 
 @dataclass
@@ -193,7 +199,8 @@ class VisualOdometry:
         self._mapper_count = 0  # mappers made so far: each new one gets its own seed
         self._mapper = self._new_mapper()
         self._verifier = None  # tracking thread only: InitVerifier after a random initialisation
-        self.depth_accuracy_series: list[dict] = []
+        # one row (dict) per mapped frame with a depth image, stored as numbers (long runs stay small)
+        self.depth_accuracy_series = RowRecord(DEPTH_ACCURACY_FIELDS, ints=("frame", "compared"))
         # shared
         self._ref_lock = threading.Lock()
         self._reference: _Reference | None = None
