@@ -53,6 +53,7 @@ from .keyframes import Keyframe, KeyframeStore, PointCloud, scene_cloud
 from .mapping import MapFrame, Mapper, depth_accuracy
 from .timing import Timers
 from .tracking import Tracker, TrackingReference, depth_image_idepth
+from .tracking.relocalizer import Relocalizer
 from .photometric import PhotometricCalibration, PhotometricMonitor
 
 log = logging.getLogger(__name__)
@@ -67,7 +68,8 @@ class FrameResult:
     lost: bool
     quality: dict = field(default_factory=dict)
     mapped: bool = False
-    event: str = ""  # "init", "bootstrap" (two-view start-up), "reinit" (after a loss), "lost", "recovered" or ""
+    event: str = ""  # "init", "bootstrap" (two-view start-up), "reinit" (after a loss), "lost", "recovered",
+    #                  "relocalised" (re-tracked against a stored keyframe: quality["keyframe"]) or ""
     corrections: dict = field(default_factory=dict)  # earlier frame index -> corrected T_world_cam or None
     image: np.ndarray | None = field(default=None, repr=False)  # float32 grey at mapping resolution
 
@@ -187,7 +189,10 @@ class VisualOdometry:
         self._index = 0
         self._t0: float | None = None
         self._last_ts: float | None = None
-        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "reinit": 0, "bootstrap": 0, "mapped": 0}
+        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "reinit": 0, "bootstrap": 0, "mapped": 0,
+                       "relocalised": 0}
+        self._relocalizer = Relocalizer(config.tracking, self._tracker, res.pyramid_levels, res.track_level) \
+            if config.tracking.relocalise else None
         self._prev_depth_frame: _Frame | None = None
         # mapping thread only (replaced as a whole, under _ref_lock, on (re-)initialisation)
         self._mapper_count = 0  # mappers made so far: each new one gets its own seed
@@ -452,6 +457,11 @@ class VisualOdometry:
                     result = self._apply_bootstrap(decision, frame, quality)
                     self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
                     return result
+        if lost and self._relocalizer is not None and self._verifier is None:
+            result = self._relocalise(frame, quality, sigma)
+            if result is not None:
+                self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
+                return result
         if lost:
             self._lost_count += 1
             self.counts["lost"] += 1
@@ -474,6 +484,49 @@ class VisualOdometry:
         mapped = self._hand_to_mapping(frame)
         return FrameResult(frame.index, frame.timestamp, T_world_new.copy(), False, quality,
                            mapped=mapped, event=event)
+
+    def _relocalise(self, frame: _Frame, quality: dict, sigma: float) -> FrameResult | None:
+        """Re-track a lost frame against stored keyframes of the current scale; on success the
+        keyframe's map (same world frame and scale) becomes the current map."""
+        t = time.perf_counter()
+        kfs = [k for k in self.keyframes.snapshot() if k.scale_id == self._scale_id]
+        self._relocalizer.forget(k.index for k in kfs)
+        rel = self._relocalizer.relocalise(kfs, self._last_good_pose, frame.pyramid, frame.image,
+                                           (1.0, 0.0), sigma)
+        self.timers.add("relocalise", (time.perf_counter() - t) * 1e3)
+        if rel is None:
+            return None
+        kf = rel.keyframe
+        img = np.asarray(kf.image, dtype=np.float32)
+        kf_frame = _Frame(kf.index, kf.timestamp, img, image_pyramid(img, self.config.resolution.pyramid_levels),
+                          None, T_world_cam=np.array(kf.T_world_cam, dtype=np.float64),
+                          affine=self._monitor.affine)
+        mapper = self._new_mapper()
+        mapper.initialize_from_idepth(MapFrame(kf.index, kf.timestamp, img, kf_frame.T_world_cam, 0.0,
+                                               kf_frame.affine), kf.idepth, kf.idepth_var)
+        idepth, idepth_var, valid = mapper.current()
+        ref = self._build_reference(kf_frame, idepth, idepth_var, valid)
+        self._stop_mapping_work()
+        with self._ref_lock:              # installed, not published: the keyframe's map is already stored
+            self._mapper = mapper
+            self._reference = ref
+        tr = rel.result
+        frame.affine = self._monitor.accept(ref.affine, tr.affine, tr.residual_sigma, tr.noise_sigma)
+        frame.noise_sigma = self._monitor.noise_sigma
+        T_world_new = rel.T_world_new
+        log.info("relocalised frame %d against keyframe %d (%s guess, %d tracking calls)", frame.index,
+                 kf.index, rel.guess, rel.tried)
+        self._accept_pose(T_world_new, smooth=False)
+        frame.T_world_cam = T_world_new
+        frame.residual = float(tr.residual)
+        self.counts["tracked"] += 1
+        self.counts["relocalised"] += 1
+        quality = {**quality, "residual": float(tr.residual), "good_ratio": float(tr.good_ratio),
+                   "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used),
+                   "keyframe": int(kf.index), "reloc_guess": rel.guess}
+        mapped = self._hand_to_mapping(frame)
+        return FrameResult(frame.index, frame.timestamp, T_world_new.copy(), False, quality, mapped=mapped,
+                           event="relocalised")
 
     def _accept_pose(self, T_world_new: np.ndarray, smooth: bool) -> None:
         """Book-keeping of a tracked pose: velocity (constant-velocity guess) and last poses."""

@@ -63,3 +63,16 @@ class TrackingConfig:
                                     "estimate) (0 = constant sigma_i)", 0.0, 10.0)
     noise_smoothing: float = param(0.2, "weight of the newest frame in the exponential smoothing of the noise estimate",
                                    0.0, 1.0)
+    relocalise: bool = param(True, "after a loss, try to re-track each lost frame against stored keyframes of the current "
+                             "scale (same world frame and scale) before re-initialising")
+    reloc_pose_candidates: int = param(2, "relocalisation: keyframes nearest by pose to the last good pose tried first",
+                                       0, 50)
+    reloc_thumb_candidates: int = param(3, "relocalisation: then the keyframes with the best 16x12 thumbnail SSD "
+                                        "against the new frame", 0, 50)
+    reloc_min_good_ratio: float = param(0.7, "relocalisation: accept only when the good-residual share is at least "
+                                        "this (stricter than min_good_ratio) besides the tracker's lost test",
+                                        0.0, 1.0)
+    reloc_features: int = param(500, "relocalisation: ORB features per image for a PnP guess against the keyframe's "
+                                "depth, tried before the keyframe's own pose (0 = off: own pose only)", 0, 10000)
+    reloc_min_inliers: int = param(15, "relocalisation: PnP inliers needed for the feature guess", 6, 10000)
+    reloc_cache: int = param(4, "relocalisation: tracking references of keyframes kept built (LRU)", 1, 100)
