@@ -299,6 +299,8 @@ class VisualOdometry:
             "mapping": Timers.summary(self.timers.values("mapping")),
             "stages": stages,
             "frames": {k: int(self.counts[k]) for k in ("in", "tracked", "lost", "dropped")},
+            "relocalised": int(self.counts["relocalised"]),
+            "hypotheses": dict(sorted(self._tracker.hypothesis_counts.items())),   # which tracking guess won
         }
 
     def note_dropped(self) -> None:
@@ -435,10 +437,11 @@ class VisualOdometry:
         T_guess = T_ref_world @ guess_world
         tc = self.config.tracking
         sigma = self._monitor.tracking_sigma(tc.sigma_i, tc.noise_sigma_gain, frame.sharpness)
-        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, self._monitor.affine_guess(ref.affine), sigma)
+        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, self._monitor.affine_guess(ref.affine), sigma,
+                                 motion=(T_ref_world @ base, self._velocity))
         for lvl, ms in tr.level_ms.items():
             self.timers.add(f"track_lvl{lvl}", ms)
-        quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio),
+        quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio), "hypothesis": tr.hypothesis,
                    "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used),
                    "sharpness": float(frame.sharpness), "affine_a": tr.affine[0], "affine_b": tr.affine[1]}
         lost = bool(tr.lost) or not np.all(np.isfinite(tr.T_ref_new))

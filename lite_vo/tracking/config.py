@@ -76,3 +76,12 @@ class TrackingConfig:
                                 "depth, tried before the keyframe's own pose (0 = off: own pose only)", 0, 10000)
     reloc_min_inliers: int = param(15, "relocalisation: PnP inliers needed for the feature guess", 6, 10000)
     reloc_cache: int = param(4, "relocalisation: tracking references of keyframes kept built (LRU)", 1, 100)
+    motion_hypotheses: bool = param(True, "wide basin: when tracking from the first guess is lost or its coarsest-level "
+                                    "energy is far above the recent frames', retry the coarsest level from several "
+                                    "motion hypotheses (velocity x1/x2/x0.5, zero motion, the reference's pose, "
+                                    "26 small rotations)")
+    hypothesis_residual_factor: float = param(2.0, "wide basin: a coarsest-level energy above this times the recent "
+                                              "frames' median triggers (and fails) a hypothesis", 1.0, 100.0)
+    hypothesis_rotation_deg: float = param(2.0, "wide basin: angle of the 26 rotation hypotheses (0 = none)", 0.0, 45.0)
+    hypothesis_window: int = param(10, "wide basin: recent frames whose coarsest-level energies form the median",
+                                   1, 1000)
