@@ -390,6 +390,7 @@ class VisualOdometry:
         self._stop_mapping_work()
         with self._ref_lock:
             self._mapper = mapper
+        self._tracker.reset_motion_history()
         self._publish(ref, mapper, frame)
 
     def _initialize(self, frame: _Frame, T_world_cam: np.ndarray, event: str) -> FrameResult:
@@ -513,6 +514,7 @@ class VisualOdometry:
         with self._ref_lock:              # installed, not published: the keyframe's map is already stored
             self._mapper = mapper
             self._reference = ref
+        self._tracker.reset_motion_history()
         tr = rel.result
         frame.affine = self._monitor.accept(ref.affine, tr.affine, tr.residual_sigma, tr.noise_sigma)
         frame.noise_sigma = self._monitor.noise_sigma

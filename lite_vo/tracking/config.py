@@ -86,3 +86,5 @@ class TrackingConfig:
     hypothesis_rotation_deg: float = param(2.0, "wide basin: angle of the 26 rotation hypotheses (0 = none)", 0.0, 45.0)
     hypothesis_window: int = param(10, "wide basin: recent frames whose coarsest-level energies form the median",
                                    1, 1000)
+    hypothesis_min_history: int = param(3, "wide basin: frames tracked on the current map before hypotheses are tried",
+                                        1, 1000)

@@ -193,9 +193,14 @@ class Tracker:
         c = self.config
         if motion is None or not c.motion_hypotheses:
             return res
-        # no recent frames yet: the first guess is fine unless lost, and every hypothesis is tried
-        limit = c.hypothesis_residual_factor * float(np.median(self._recent_coarse)) if self._recent_coarse else None
-        if not res.lost and (limit is None or res.coarse_err <= limit):
+        if len(self._recent_coarse) < c.hypothesis_min_history:
+            # too few recent frames (a new map): "acceptable" is not defined yet, and on a fresh random
+            # map some rotation always fits; the first guess only
+            if not res.lost and np.isfinite(res.coarse_err):
+                self._recent_coarse.append(res.coarse_err)
+            return res
+        limit = c.hypothesis_residual_factor * float(np.median(self._recent_coarse))
+        if not res.lost and res.coarse_err <= limit:
             res.hypothesis = "first"
         else:
             T_last, velocity = (np.asarray(m, dtype=np.float64) for m in motion)
@@ -208,7 +213,7 @@ class Tracker:
                 err = self._coarsest_energy(ref, image_pyr_new, T_guess, affine_guess, top)
                 if err < best_err:
                     best_name, best_T, best_err = name, T_guess, err
-                if limit is not None and err <= limit:
+                if err <= limit:
                     break
             if best_T is not None:
                 alt = self._track_once(ref, image_pyr_new, best_T, affine_guess, sigma_i)
@@ -222,6 +227,10 @@ class Tracker:
             if np.isfinite(res.coarse_err):
                 self._recent_coarse.append(res.coarse_err)
         return res
+
+    def reset_motion_history(self) -> None:
+        """Forget the recent coarsest-level energies (call when the map is replaced)."""
+        self._recent_coarse.clear()
 
     def _coarsest_energy(self, ref, image_pyr_new, T_ref_new_guess, affine_guess, top: int) -> float:
         """Final mean energy of an alignment on level ``top`` only, from ``T_ref_new_guess``
