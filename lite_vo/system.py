@@ -300,7 +300,9 @@ class VisualOdometry:
             "stages": stages,
             "frames": {k: int(self.counts[k]) for k in ("in", "tracked", "lost", "dropped")},
             "relocalised": int(self.counts["relocalised"]),
-            "hypotheses": dict(sorted(self._tracker.hypothesis_counts.items())),   # which tracking guess won
+            # wide basin: frames on which the motion hypotheses were tried, and which guess won
+            "hypotheses": {"tried": int(self._tracker.hypothesis_frames),
+                           "won": dict(sorted(self._tracker.hypothesis_counts.items()))},
         }
 
     def note_dropped(self) -> None:

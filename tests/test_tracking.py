@@ -474,7 +474,7 @@ def test_hypotheses_rescue_a_start_where_the_single_guess_diverges(room_pair):
     t_err, r_err = _pose_error(res.T_ref_new, truth)
     assert not res.lost and t_err < 5e-3 and r_err < 0.2, (t_err, r_err)
     assert res.hypothesis not in ("", "first")
-    assert tracker.hypothesis_counts[res.hypothesis] == 1
+    assert tracker.hypothesis_counts[res.hypothesis] == 1 and tracker.hypothesis_frames == 1
     # without recent frames (a new map) the hypotheses are not tried
     tracker.reset_motion_history()
     fresh = tracker.track(ref, pyr, T_last @ V, motion=(T_last, V))
@@ -496,4 +496,4 @@ def test_hypotheses_are_not_tried_when_the_first_guess_is_good(room_pair):
                             motion=(np.linalg.matrix_power(V, k - 1), V))
         assert not res.lost and res.hypothesis == ("first" if k > 3 else "")
         assert _pose_error(res.T_ref_new, truth)[0] < 2e-3
-    assert dict(tracker.hypothesis_counts) == {"first": 2}
+    assert dict(tracker.hypothesis_counts) == {"first": 2} and tracker.hypothesis_frames == 0

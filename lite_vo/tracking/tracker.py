@@ -156,6 +156,7 @@ class Tracker:
         modes = {"bspline": kernels.INTERP_BSPLINE, "bilinear": kernels.INTERP_BILINEAR}
         self._recent_coarse: deque = deque(maxlen=max(int(config.hypothesis_window), 1))
         self.hypothesis_counts: Counter = Counter()   # which hypothesis won, over the tracker's life
+        self.hypothesis_frames = 0                    # frames on which the hypotheses were tried
         self._interp_fine = modes[config.interpolation]
         self._interp_coarse = modes[config.interpolation_coarse]
         if kernels.INTERP_BSPLINE in (self._interp_fine, self._interp_coarse) and config.border_px < 1.0:
@@ -203,6 +204,7 @@ class Tracker:
         if not res.lost and res.coarse_err <= limit:
             res.hypothesis = "first"
         else:
+            self.hypothesis_frames += 1
             T_last, velocity = (np.asarray(m, dtype=np.float64) for m in motion)
             top = min(self.coarsest, min(len(image_pyr_new), ref.num_levels) - 1)
             best_name, best_T, best_err = None, None, np.inf
