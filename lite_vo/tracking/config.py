@@ -86,5 +86,10 @@ class TrackingConfig:
     hypothesis_rotation_deg: float = param(2.0, "wide basin: angle of the 26 rotation hypotheses (0 = none)", 0.0, 45.0)
     hypothesis_window: int = param(10, "wide basin: recent frames whose coarsest-level energies form the median",
                                    1, 1000)
+    hypothesis_min_energy: float = param(1.0, "wide basin: a coarsest-level energy below this (residuals at the noise "
+                                         "level) never triggers the hypotheses (a still camera's tiny energies "
+                                         "fluctuate by more than the factor)", 0.0, 1e6)
+    hypothesis_improvement: float = param(0.8, "wide basin: a tracked (not lost) first result is replaced only by a "
+                                          "hypothesis whose residual is below this share of it", 0.0, 1.0)
     hypothesis_min_history: int = param(3, "wide basin: frames tracked on the current map before hypotheses are tried",
                                         1, 1000)

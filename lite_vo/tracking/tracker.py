@@ -185,10 +185,11 @@ class Tracker:
 
         ``motion = (T_ref_last, velocity)`` (the last frame's pose in the reference and the last
         frame-to-frame motion ``T_last_new``) enables the wide basin: when tracking from
-        ``T_ref_new_guess`` is lost or its coarsest-level energy exceeds ``hypothesis_residual_factor``
-        times the recent frames' median, the :func:`motion_hypotheses` are tried on the coarsest level
-        and the first one whose energy is acceptable (else the lowest) is tracked to the finest
-        level; the better of the two results is returned (``result.hypothesis`` says which won)."""
+        ``T_ref_new_guess`` is lost or its coarsest-level energy exceeds both ``hypothesis_min_energy``
+        and ``hypothesis_residual_factor`` times the recent frames' median, the :func:`motion_hypotheses`
+        are tried on the coarsest level and the first one whose energy is acceptable (else the lowest)
+        is tracked to the finest level; it replaces a lost first result, or a tracked one whose residual
+        it beats by the factor ``hypothesis_improvement`` (``result.hypothesis`` says which won)."""
         t_start = time.perf_counter()
         res = self._track_once(ref, image_pyr_new, T_ref_new_guess, affine_guess, sigma_i)
         c = self.config
@@ -200,7 +201,7 @@ class Tracker:
             if not res.lost and np.isfinite(res.coarse_err):
                 self._recent_coarse.append(res.coarse_err)
             return res
-        limit = c.hypothesis_residual_factor * float(np.median(self._recent_coarse))
+        limit = max(c.hypothesis_residual_factor * float(np.median(self._recent_coarse)), c.hypothesis_min_energy)
         if not res.lost and res.coarse_err <= limit:
             res.hypothesis = "first"
         else:
@@ -219,7 +220,7 @@ class Tracker:
                     break
             if best_T is not None:
                 alt = self._track_once(ref, image_pyr_new, best_T, affine_guess, sigma_i)
-                if not alt.lost and (res.lost or alt.residual < res.residual):
+                if not alt.lost and (res.lost or alt.residual < c.hypothesis_improvement * res.residual):
                     alt.level_ms = {k: v + res.level_ms.get(k, 0.0) for k, v in alt.level_ms.items()}
                     res, res.hypothesis = alt, best_name
             res.hypothesis = res.hypothesis or "first"
