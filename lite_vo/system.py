@@ -54,6 +54,7 @@ from .mapping import MapFrame, Mapper, depth_accuracy
 from .records import RowRecord
 from .timing import Timers
 from .tracking import Tracker, TrackingReference, depth_image_idepth
+from .tracking.relocalizer import Relocalizer
 from .photometric import PhotometricCalibration, PhotometricMonitor
 
 log = logging.getLogger(__name__)
@@ -73,7 +74,8 @@ class FrameResult:
     lost: bool
     quality: dict = field(default_factory=dict)
     mapped: bool = False
-    event: str = ""  # "init", "bootstrap" (two-view start-up), "reinit" (after a loss), "lost", "recovered" or ""
+    event: str = ""  # "init", "bootstrap" (two-view start-up), "reinit" (after a loss), "lost", "recovered",
+    #                  "relocalised" (re-tracked against a stored keyframe: quality["keyframe"]) or ""
     corrections: dict = field(default_factory=dict)  # earlier frame index -> corrected T_world_cam or None
     image: np.ndarray | None = field(default=None, repr=False)  # float32 grey at mapping resolution
 
@@ -193,7 +195,10 @@ class VisualOdometry:
         self._index = 0
         self._t0: float | None = None
         self._last_ts: float | None = None
-        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "reinit": 0, "bootstrap": 0, "mapped": 0}
+        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "reinit": 0, "bootstrap": 0, "mapped": 0,
+                       "relocalised": 0}
+        self._relocalizer = Relocalizer(config.tracking, self._tracker, res.pyramid_levels, res.track_level) \
+            if config.tracking.relocalise else None
         self._prev_depth_frame: _Frame | None = None
         # mapping thread only (replaced as a whole, under _ref_lock, on (re-)initialisation)
         self._mapper_count = 0  # mappers made so far: each new one gets its own seed
@@ -301,6 +306,10 @@ class VisualOdometry:
             "mapping": Timers.summary(self.timers.values("mapping")),
             "stages": stages,
             "frames": {k: int(self.counts[k]) for k in ("in", "tracked", "lost", "dropped")},
+            "relocalised": int(self.counts["relocalised"]),
+            # wide basin: frames on which the motion hypotheses were tried, and which guess won
+            "hypotheses": {"tried": int(self._tracker.hypothesis_frames),
+                           "won": dict(sorted(self._tracker.hypothesis_counts.items()))},
         }
 
     def note_dropped(self) -> None:
@@ -390,6 +399,7 @@ class VisualOdometry:
         self._stop_mapping_work()
         with self._ref_lock:
             self._mapper = mapper
+        self._tracker.reset_motion_history()
         self._publish(ref, mapper, frame)
 
     def _initialize(self, frame: _Frame, T_world_cam: np.ndarray, event: str) -> FrameResult:
@@ -437,10 +447,11 @@ class VisualOdometry:
         T_guess = T_ref_world @ guess_world
         tc = self.config.tracking
         sigma = self._monitor.tracking_sigma(tc.sigma_i, tc.noise_sigma_gain, frame.sharpness)
-        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, self._monitor.affine_guess(ref.affine), sigma)
+        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, self._monitor.affine_guess(ref.affine), sigma,
+                                 motion=(T_ref_world @ base, self._velocity))
         for lvl, ms in tr.level_ms.items():
             self.timers.add(f"track_lvl{lvl}", ms)
-        quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio),
+        quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio), "hypothesis": tr.hypothesis,
                    "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used),
                    "sharpness": float(frame.sharpness), "affine_a": tr.affine[0], "affine_b": tr.affine[1]}
         lost = bool(tr.lost) or not np.all(np.isfinite(tr.T_ref_new))
@@ -459,6 +470,11 @@ class VisualOdometry:
                     result = self._apply_bootstrap(decision, frame, quality)
                     self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
                     return result
+        if lost and self._relocalizer is not None and self._verifier is None:
+            result = self._relocalise(frame, quality, sigma)
+            if result is not None:
+                self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
+                return result
         if lost:
             self._lost_count += 1
             self.counts["lost"] += 1
@@ -481,6 +497,50 @@ class VisualOdometry:
         mapped = self._hand_to_mapping(frame)
         return FrameResult(frame.index, frame.timestamp, T_world_new.copy(), False, quality,
                            mapped=mapped, event=event)
+
+    def _relocalise(self, frame: _Frame, quality: dict, sigma: float) -> FrameResult | None:
+        """Re-track a lost frame against stored keyframes of the current scale; on success the
+        keyframe's map (same world frame and scale) becomes the current map."""
+        t = time.perf_counter()
+        kfs = [k for k in self.keyframes.snapshot() if k.scale_id == self._scale_id]
+        self._relocalizer.forget(k.index for k in kfs)
+        rel = self._relocalizer.relocalise(kfs, self._last_good_pose, frame.pyramid, frame.image,
+                                           (1.0, 0.0), sigma)
+        self.timers.add("relocalise", (time.perf_counter() - t) * 1e3)
+        if rel is None:
+            return None
+        kf = rel.keyframe
+        img = np.asarray(kf.image, dtype=np.float32)
+        kf_frame = _Frame(kf.index, kf.timestamp, img, image_pyramid(img, self.config.resolution.pyramid_levels),
+                          None, T_world_cam=np.array(kf.T_world_cam, dtype=np.float64),
+                          affine=self._monitor.affine)
+        mapper = self._new_mapper()
+        mapper.initialize_from_idepth(MapFrame(kf.index, kf.timestamp, img, kf_frame.T_world_cam, 0.0,
+                                               kf_frame.affine), kf.idepth, kf.idepth_var)
+        idepth, idepth_var, valid = mapper.current()
+        ref = self._build_reference(kf_frame, idepth, idepth_var, valid)
+        self._stop_mapping_work()
+        with self._ref_lock:              # installed, not published: the keyframe's map is already stored
+            self._mapper = mapper
+            self._reference = ref
+        self._tracker.reset_motion_history()
+        tr = rel.result
+        frame.affine = self._monitor.accept(ref.affine, tr.affine, tr.residual_sigma, tr.noise_sigma)
+        frame.noise_sigma = self._monitor.noise_sigma
+        T_world_new = rel.T_world_new
+        log.info("relocalised frame %d against keyframe %d (%s guess, %d tracking calls)", frame.index,
+                 kf.index, rel.guess, rel.tried)
+        self._accept_pose(T_world_new, smooth=False)
+        frame.T_world_cam = T_world_new
+        frame.residual = float(tr.residual)
+        self.counts["tracked"] += 1
+        self.counts["relocalised"] += 1
+        quality = {**quality, "residual": float(tr.residual), "good_ratio": float(tr.good_ratio),
+                   "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used),
+                   "keyframe": int(kf.index), "reloc_guess": rel.guess}
+        mapped = self._hand_to_mapping(frame)
+        return FrameResult(frame.index, frame.timestamp, T_world_new.copy(), False, quality, mapped=mapped,
+                           event="relocalised")
 
     def _accept_pose(self, T_world_new: np.ndarray, smooth: bool) -> None:
         """Book-keeping of a tracked pose: velocity (constant-velocity guess) and last poses."""

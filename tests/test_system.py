@@ -105,6 +105,24 @@ def test_loss_is_reported_as_a_gap_and_tracking_recovers(synth_small):
     assert vo.take_published_maps() == []
 
 
+@pytest.mark.parametrize("relocalise", [True, False])
+def test_ten_black_frames_are_lost_and_tracking_recovers_in_the_same_map(synth_small, relocalise):
+    seq, frames = _frames(synth_small, 40)
+    cfg = lite_vo.load_profile("phone", ['system.init="depth"', f"tracking.relocalise={str(relocalise).lower()}"])
+    results = []
+    with VisualOdometry(seq.camera, cfg) as vo:
+        for fr in frames:
+            img = np.zeros_like(fr.image) if 20 <= fr.index < 30 else fr.image   # the lens is covered
+            results.append(vo.process(img, fr.timestamp, depth=fr.depth))
+    assert [r.index for r in results if r.lost] == list(range(20, 30))
+    assert not any(r.event == "reinit" for r in results)
+    assert results[30].event in ("recovered", "relocalised")
+    gt = seq.groundtruth.poses
+    T0 = np.linalg.inv(gt[0])
+    for i in (30, 39):
+        assert np.linalg.norm((T0 @ gt[i])[:3, 3] - results[i].T_world_cam[:3, 3]) < 0.03
+
+
 def test_long_loss_reinitialises_the_map(synth_small):
     seq, frames = _frames(synth_small, 30)
     cfg = lite_vo.load_profile("phone", ['system.init="depth"', "system.max_lost_frames=3"])

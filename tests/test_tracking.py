@@ -430,3 +430,70 @@ def test_non_rigid_guess_is_projected_and_result_is_rigid(room_pair):
     np.testing.assert_array_equal(res.T_ref_new[3], [0, 0, 0, 1])
     t_err, r_err = _pose_error(res.T_ref_new, T_ref_new)
     assert t_err < 1.5e-3 and r_err < 0.06
+
+
+# ----------------------------------------------------------------------------- wide basin (motion hypotheses)
+def test_motion_hypotheses_order_and_rotation_angle():
+    from lite_vo.tracking.tracker import motion_hypotheses
+    V = exp_se3(np.array([0.02, 0.0, 0.01, 0.0, np.radians(2.0), 0.0]))
+    T_last = exp_se3(np.array([0.1, 0.0, 0.0, 0.0, 0.0, np.radians(3.0)]))
+    hyps = motion_hypotheses(T_last, V, np.radians(2.0))
+    names = [n for n, _ in hyps]
+    assert names[:5] == ["velocity", "velocity_x2", "velocity_x0.5", "zero_motion", "keyframe"]
+    assert len(names) == 5 + 26 and len(set(names)) == len(names)
+    H = dict(hyps)
+    np.testing.assert_allclose(H["velocity_x2"], T_last @ V @ V, atol=1e-12)
+    np.testing.assert_allclose(log_se3(inverse_se3(T_last) @ H["velocity_x0.5"]), 0.5 * log_se3(V), atol=1e-12)
+    for n, T in hyps[5:]:
+        _, r = _pose_error(T, H["velocity"])
+        assert r == pytest.approx(2.0, abs=1e-6), n
+
+
+def _warm_up(tracker, room, ref, n=3):
+    """Track ``n`` small motions (the recent frames the wide basin compares against)."""
+    for k in range(1, n + 1):
+        T = exp_se3(np.array([0.005 * k, 0.0, 0.0, 0.0, 0.0, 0.0]))
+        img, _ = room.render(T, INTR, supersample=2)
+        assert not tracker.track(ref, image_pyramid(img, LEVELS), np.eye(4), motion=(np.eye(4), np.eye(4))).lost
+
+
+def test_hypotheses_rescue_a_start_where_the_single_guess_diverges(room_pair):
+    """Two frames were dropped: the constant-velocity guess is one frame's motion (10 cm, 8 deg)
+    short and diverges; a motion hypothesis (2x velocity or a rotation about it) converges."""
+    room, ref = room_pair
+    V = exp_se3(np.array([0.1, 0.0, 0.01, 0.0, np.radians(8.0), 0.0]))
+    T_last = V
+    truth = T_last @ V @ V
+    img1, _ = room.render(truth, INTR, supersample=2)
+    pyr = image_pyramid(img1, LEVELS)
+    single = Tracker(TrackingConfig(), INTR, LEVELS, TRACK_LEVEL).track(ref, pyr, T_last @ V)
+    assert single.lost or _pose_error(single.T_ref_new, truth)[0] > 0.05
+    tracker = Tracker(TrackingConfig(), INTR, LEVELS, TRACK_LEVEL)
+    _warm_up(tracker, room, ref)
+    res = tracker.track(ref, pyr, T_last @ V, motion=(T_last, V))
+    t_err, r_err = _pose_error(res.T_ref_new, truth)
+    assert not res.lost and t_err < 5e-3 and r_err < 0.2, (t_err, r_err)
+    assert res.hypothesis not in ("", "first")
+    assert tracker.hypothesis_counts[res.hypothesis] == 1 and tracker.hypothesis_frames == 1
+    # without recent frames (a new map) the hypotheses are not tried
+    tracker.reset_motion_history()
+    fresh = tracker.track(ref, pyr, T_last @ V, motion=(T_last, V))
+    assert fresh.lost == single.lost and fresh.hypothesis == ""
+    # switched off: the same call is the single guess
+    off = Tracker(dataclasses.replace(TrackingConfig(), motion_hypotheses=False), INTR, LEVELS, TRACK_LEVEL)
+    res_off = off.track(ref, pyr, T_last @ V, motion=(T_last, V))
+    assert res_off.lost == single.lost and res_off.hypothesis == ""
+
+
+def test_hypotheses_are_not_tried_when_the_first_guess_is_good(room_pair):
+    room, ref = room_pair
+    V = exp_se3(np.array([0.02, 0.0, 0.0, 0.0, np.radians(1.0), 0.0]))
+    tracker = Tracker(TrackingConfig(), INTR, LEVELS, TRACK_LEVEL)
+    for k in (1, 2, 3, 4, 5):
+        truth = np.linalg.matrix_power(V, k)
+        img, _ = room.render(truth, INTR, supersample=2)
+        res = tracker.track(ref, image_pyramid(img, LEVELS), np.linalg.matrix_power(V, k - 1) @ V,
+                            motion=(np.linalg.matrix_power(V, k - 1), V))
+        assert not res.lost and res.hypothesis == ("first" if k > 3 else "")
+        assert _pose_error(res.T_ref_new, truth)[0] < 2e-3
+    assert dict(tracker.hypothesis_counts) == {"first": 2} and tracker.hypothesis_frames == 0

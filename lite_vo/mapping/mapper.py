@@ -247,6 +247,20 @@ class Mapper:
             s.idepth[:] = np.where(mask, 1.0 / np.where(ok, depth, 1.0), 0.0)
         self._init_common(mask, cfg.depth_init_var, frame.frame_id)
 
+    def initialize_from_idepth(self, frame: MapFrame, idepth: np.ndarray, idepth_var: np.ndarray) -> None:
+        """Hypotheses from a stored map (a keyframe): inverse depth and variance (NaN / <= 0 = none)."""
+        prep = self._check_frame(frame)
+        d = np.asarray(idepth, dtype=np.float64)
+        v = np.asarray(idepth_var, dtype=np.float64)
+        if d.shape != (self.h, self.w) or v.shape != (self.h, self.w):
+            raise InputError(f"Mapper: idepth/var have shape {d.shape}/{v.shape}, expected {(self.h, self.w)}")
+        self._reset(prep)
+        mask = np.isfinite(d) & (d > 0) & np.isfinite(v) & (v > 0)
+        self.state.idepth[:] = np.where(mask, d, 0.0)
+        self._init_common(mask, 0.0, frame.frame_id)
+        self.state.idepth_var[:] = np.where(mask, v, 0.0)
+        self.state.var_s[:] = self.state.idepth_var
+
     def _init_common(self, mask: np.ndarray, var: float, frame_id: int) -> None:
         s = self.state
         s.idepth_var[:] = np.where(mask, var, 0.0)

@@ -63,3 +63,33 @@ class TrackingConfig:
                                     "estimate) (0 = constant sigma_i)", 0.0, 10.0)
     noise_smoothing: float = param(0.2, "weight of the newest frame in the exponential smoothing of the noise estimate",
                                    0.0, 1.0)
+    relocalise: bool = param(True, "after a loss, try to re-track each lost frame against stored keyframes of the current "
+                             "scale (same world frame and scale) before re-initialising")
+    reloc_pose_candidates: int = param(2, "relocalisation: keyframes nearest by pose to the last good pose tried first",
+                                       0, 50)
+    reloc_thumb_candidates: int = param(3, "relocalisation: then the keyframes with the best 16x12 thumbnail SSD "
+                                        "against the new frame", 0, 50)
+    reloc_min_good_ratio: float = param(0.7, "relocalisation: accept only when the good-residual share is at least "
+                                        "this (stricter than min_good_ratio) besides the tracker's lost test",
+                                        0.0, 1.0)
+    reloc_features: int = param(500, "relocalisation: ORB features per image for a PnP guess against the keyframe's "
+                                "depth, tried before the keyframe's own pose (0 = off: own pose only)", 0, 10000)
+    reloc_min_inliers: int = param(15, "relocalisation: PnP inliers needed for the feature guess", 6, 10000)
+    reloc_cache: int = param(4, "relocalisation: tracking references of keyframes kept built (LRU)", 1, 100)
+    motion_hypotheses: bool = param(True, "wide basin: when tracking from the first guess is lost or its coarsest-level "
+                                    "energy is far above the recent frames', retry the coarsest level from several "
+                                    "motion hypotheses (velocity x1/x2/x0.5, zero motion, the reference's pose, "
+                                    "26 small rotations)")
+    hypothesis_residual_factor: float = param(4.0, "wide basin: a coarsest-level energy above this times the recent "
+                                              "frames' median triggers (and fails) a hypothesis (ICL, normal frames: "
+                                              "the ratio's p99 is 2.9, its maximum 3.7)", 1.0, 100.0)
+    hypothesis_rotation_deg: float = param(2.0, "wide basin: angle of the 26 rotation hypotheses (0 = none)", 0.0, 45.0)
+    hypothesis_window: int = param(10, "wide basin: recent frames whose coarsest-level energies form the median",
+                                   1, 1000)
+    hypothesis_min_energy: float = param(1.0, "wide basin: a coarsest-level energy below this (residuals at the noise "
+                                         "level) never triggers the hypotheses (a still camera's tiny energies "
+                                         "fluctuate by more than the factor)", 0.0, 1e6)
+    hypothesis_improvement: float = param(0.8, "wide basin: a tracked (not lost) first result is replaced only by a "
+                                          "hypothesis whose residual is below this share of it", 0.0, 1.0)
+    hypothesis_min_history: int = param(3, "wide basin: frames tracked on the current map before hypotheses are tried",
+                                        1, 1000)

@@ -7,13 +7,15 @@ Imports numpy, :mod:`lite_vo.image`, :mod:`lite_vo.geometry` and the tracking ke
 """
 from __future__ import annotations
 
+import itertools
 import time
+from collections import Counter, deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..camera import PinholeIntrinsics
-from ..geometry import inverse_se3, project_to_se3
+from ..geometry import exp_se3, exp_so3, inverse_se3, log_se3, make_pose, project_to_se3
 from ..image import bspline_coefficient_stack, gaussian_blur, gaussian_kernel, intensity_gradient_stack
 from . import _kernels as kernels
 from .config import TrackingConfig
@@ -50,6 +52,8 @@ class TrackingResult:
     noise_sigma: float = float("nan")
     sigma_i: float = float("nan")
     total_ms: float = 0.0
+    coarse_err: float = float("nan")   # final mean energy on the coarsest level used
+    hypothesis: str = ""               # with motion hypotheses: the one that won ("first": the first guess)
 
     def quality(self) -> dict:
         """Scalar quality numbers as a plain dict (for logs and FrameResult.quality)."""
@@ -83,6 +87,34 @@ def tracking_params(c: TrackingConfig) -> np.ndarray:
     p[kernels.TP_AFF_PRIOR_B] = c.affine_prior_b
     p[kernels.TP_SATURATION] = c.saturation
     return p
+
+
+def _rotation_directions() -> list[np.ndarray]:
+    """The 26 unit directions of the 3x3x3 cube around the origin (DSO's rotation tries)."""
+    out = []
+    for d in itertools.product((-1.0, 0.0, 1.0), repeat=3):
+        if any(d):
+            v = np.array(d)
+            out.append(v / np.linalg.norm(v))
+    return out
+
+
+_DIRECTIONS = _rotation_directions()
+
+
+def motion_hypotheses(T_ref_last: np.ndarray, velocity: np.ndarray, rotation_rad: float) -> list[tuple[str, np.ndarray]]:
+    """Starting guesses ``T_ref_new`` for the wide basin, in the order they are tried: constant
+    velocity, 2x, 0.5x, zero motion (the last pose), the reference's own pose ("keyframe"), then
+    rotations by ``rotation_rad`` in 26 directions about the constant-velocity guess."""
+    xi = log_se3(velocity)
+    cv = T_ref_last @ velocity
+    out = [("velocity", cv), ("velocity_x2", T_ref_last @ exp_se3(2.0 * xi)),
+           ("velocity_x0.5", T_ref_last @ exp_se3(0.5 * xi)), ("zero_motion", T_ref_last.copy()),
+           ("keyframe", np.eye(4))]
+    if rotation_rad > 0:
+        out += [(f"rotation_{i}", cv @ make_pose(exp_so3(rotation_rad * d), np.zeros(3)))
+                for i, d in enumerate(_DIRECTIONS)]
+    return out
 
 
 def _robust_sigma(r: np.ndarray) -> float:
@@ -122,6 +154,9 @@ class Tracker:
         self._stats = np.zeros(kernels.ST_SIZE)
         self._buf = np.empty((kernels.BUF_ROWS, 1024))
         modes = {"bspline": kernels.INTERP_BSPLINE, "bilinear": kernels.INTERP_BILINEAR}
+        self._recent_coarse: deque = deque(maxlen=max(int(config.hypothesis_window), 1))
+        self.hypothesis_counts: Counter = Counter()   # which hypothesis won, over the tracker's life
+        self.hypothesis_frames = 0                    # frames on which the hypotheses were tried
         self._interp_fine = modes[config.interpolation]
         self._interp_coarse = modes[config.interpolation_coarse]
         if kernels.INTERP_BSPLINE in (self._interp_fine, self._interp_coarse) and config.border_px < 1.0:
@@ -141,12 +176,85 @@ class Tracker:
         return g
 
     def track(self, ref: TrackingReference, image_pyr_new, T_ref_new_guess, affine_guess=(1.0, 0.0),
-              sigma_i: float | None = None) -> TrackingResult:
+              sigma_i: float | None = None, motion: tuple | None = None) -> TrackingResult:
         """Align ``image_pyr_new`` (float32 pyramid, level 0 = mapping resolution) to ``ref``.
 
         ``affine_guess``: starting ``(a, b)`` of ``I_new = a I_ref + b`` (kept fixed when
         ``affine_brightness`` is off); ``sigma_i``: intensity noise std of the weights for this frame
-        (None: ``config.sigma_i``)."""
+        (None: ``config.sigma_i``).
+
+        ``motion = (T_ref_last, velocity)`` (the last frame's pose in the reference and the last
+        frame-to-frame motion ``T_last_new``) enables the wide basin: when tracking from
+        ``T_ref_new_guess`` is lost or its coarsest-level energy exceeds both ``hypothesis_min_energy``
+        and ``hypothesis_residual_factor`` times the recent frames' median, the :func:`motion_hypotheses`
+        are tried on the coarsest level and the first one whose energy is acceptable (else the lowest)
+        is tracked to the finest level; it replaces a lost first result, or a tracked one whose residual
+        it beats by the factor ``hypothesis_improvement`` (``result.hypothesis`` says which won)."""
+        t_start = time.perf_counter()
+        res = self._track_once(ref, image_pyr_new, T_ref_new_guess, affine_guess, sigma_i)
+        c = self.config
+        if motion is None or not c.motion_hypotheses:
+            return res
+        if len(self._recent_coarse) < c.hypothesis_min_history:
+            # too few recent frames (a new map): "acceptable" is not defined yet, and on a fresh random
+            # map some rotation always fits; the first guess only
+            if not res.lost and np.isfinite(res.coarse_err):
+                self._recent_coarse.append(res.coarse_err)
+            return res
+        limit = max(c.hypothesis_residual_factor * float(np.median(self._recent_coarse)), c.hypothesis_min_energy)
+        if not res.lost and res.coarse_err <= limit:
+            res.hypothesis = "first"
+        else:
+            self.hypothesis_frames += 1
+            T_last, velocity = (np.asarray(m, dtype=np.float64) for m in motion)
+            top = min(self.coarsest, min(len(image_pyr_new), ref.num_levels) - 1)
+            best_name, best_T, best_err = None, None, np.inf
+            first = np.asarray(T_ref_new_guess, dtype=np.float64)
+            for name, T_guess in motion_hypotheses(T_last, velocity, np.radians(c.hypothesis_rotation_deg)):
+                if np.allclose(T_guess, first, atol=1e-9):
+                    continue                            # that is the first guess
+                err = self._coarsest_energy(ref, image_pyr_new, T_guess, affine_guess, top)
+                if err < best_err:
+                    best_name, best_T, best_err = name, T_guess, err
+                if err <= limit:
+                    break
+            if best_T is not None:
+                alt = self._track_once(ref, image_pyr_new, best_T, affine_guess, sigma_i)
+                if not alt.lost and (res.lost or alt.residual < c.hypothesis_improvement * res.residual):
+                    alt.level_ms = {k: v + res.level_ms.get(k, 0.0) for k, v in alt.level_ms.items()}
+                    res, res.hypothesis = alt, best_name
+            res.hypothesis = res.hypothesis or "first"
+            res.total_ms = (time.perf_counter() - t_start) * 1e3
+        if not res.lost:
+            self.hypothesis_counts[res.hypothesis] += 1
+            if np.isfinite(res.coarse_err):
+                self._recent_coarse.append(res.coarse_err)
+        return res
+
+    def reset_motion_history(self) -> None:
+        """Forget the recent coarsest-level energies (call when the map is replaced)."""
+        self._recent_coarse.clear()
+
+    def _coarsest_energy(self, ref, image_pyr_new, T_ref_new_guess, affine_guess, top: int) -> float:
+        """Final mean energy of an alignment on level ``top`` only, from ``T_ref_new_guess``
+        (the new image's level must already be prepared by :meth:`_track_once`)."""
+        lv = ref.levels[top]
+        if lv.num_points < self.config.min_points or self._img3[top] is None:
+            return np.inf
+        T = np.ascontiguousarray(inverse_se3(project_to_se3(np.asarray(T_ref_new_guess, dtype=np.float64))))
+        aff = np.array([float(affine_guess[0]), float(affine_guess[1])])
+        if not (np.isfinite(aff[0]) and aff[0] > 0 and np.isfinite(aff[1])):
+            aff[:] = (1.0, 0.0)
+        interp = self._interp_fine if top == self.track_level else self._interp_coarse
+        kernels.lm_level(lv.points, self._img3[top], interp, T, self._cams[top], self._frame_params,
+                         self._max_iter(top), aff, self._buf, self._T_out, self._acc, self._aff_out, self._stats)
+        err = float(self._stats[kernels.ST_ERR])
+        if int(self._stats[kernels.ST_STATUS]) == 1 or not np.isfinite(err):
+            return np.inf
+        return err
+
+    def _track_once(self, ref: TrackingReference, image_pyr_new, T_ref_new_guess, affine_guess,
+                    sigma_i) -> TrackingResult:
         t_start = time.perf_counter()
         c = self.config
         prm = self._frame_params
@@ -171,6 +279,7 @@ class Tracker:
         acc = self._acc
         finest_acc = None
         finest_status = 1
+        coarse_err = float("nan")
         for lvl in range(top, finest - 1, -1):
             t0 = time.perf_counter()
             lv = ref.levels[lvl]
@@ -199,6 +308,8 @@ class Tracker:
                 T = self._T_out.copy()
                 aff[:] = self._aff_out
             iterations[lvl] = int(self._stats[kernels.ST_ITER])
+            if status != 1 and not np.isfinite(coarse_err):
+                coarse_err = float(self._stats[kernels.ST_ERR])
             if lvl == finest:
                 finest_acc = acc.copy()
                 finest_status = status
@@ -208,7 +319,7 @@ class Tracker:
 
         lv = ref.levels[finest]
         res = TrackingResult(T_ref_new=guess.copy(), lost=True, level_ms=level_ms, iterations=iterations,
-                             affine=(float(aff[0]), float(aff[1])), sigma_i=sig)
+                             affine=(float(aff[0]), float(aff[1])), sigma_i=sig, coarse_err=coarse_err)
         if finest_acc is None or finest_status == 1:
             res.lost_reason = ("no points (empty map, or reference built with min_level above the tracking level)"
                                if lv.num_points == 0 else "too few points inside the image")
