@@ -253,8 +253,11 @@ ar_apt() {  # what a source build of pybullet and moderngl/glcontext needs, plus
         libx11-dev libgl-dev libegl-dev libegl1 libgl1-mesa-dri libegl-mesa0 || return 1
 }
 
-ar_moderngl() {
-    in_root /opt/lite_vo/venv/bin/pip install -v moderngl trimesh
+ar_moderngl() {  # moderngl/glcontext as pip picks them (newest: from source), then an EGL context
+    in_root /opt/lite_vo/venv/bin/pip install -v moderngl trimesh || return 1
+    in_root /opt/lite_vo/venv/bin/pip list
+    in_root /opt/lite_vo/venv/bin/python -c 'from ar_demo.render import create_context
+ctx = create_context(); print("EGL context:", ctx.info["GL_RENDERER"], ctx.info["GL_VERSION"])'
 }
 
 # pybullet from source, limited to AR_MINUTES; a monitor records how many object files exist.
@@ -270,6 +273,9 @@ ar_pybullet() {
         done
     ) &
     MONITOR_PID=$!
+    # pybullet has no pyproject.toml: pip builds it with the venv's setuptools (numpy visible) and
+    # needs the `wheel` package for that
+    in_root /opt/lite_vo/venv/bin/pip install wheel || return 1
     timeout --kill-after=30 "${AR_MINUTES}m" nice -n 19 chroot "$ROOT" /usr/bin/env -i PATH="$CHROOT_PATH" \
         HOME=/root LANG=C.UTF-8 TMPDIR=/tmp/pybullet_build PIP_DISABLE_PIP_VERSION_CHECK=1 \
         /opt/lite_vo/venv/bin/pip wheel --no-deps --no-binary pybullet -v -w /opt/lite_vo/wheels pybullet

@@ -287,6 +287,13 @@ def ar_section(out: Path, steps: list[dict], ar_minutes: float | None = None) ->
     for s in steps:
         if s["side"] == "aarch64" and s["step"].startswith("ar-"):
             L.append(f"- `{s['step']}`: {s['status']} after {s['seconds']} s")
+    log = out / "logs" / "aarch64-ar-moderngl.log"
+    if log.exists():
+        text = log.read_text(encoding="utf-8", errors="replace")
+        for pattern in (r"^Successfully installed .*$", r"^EGL context: .*$"):
+            found = re.findall(pattern, text, flags=re.M)
+            if found:
+                L.append(f"- `ar-moderngl` log: {found[-1]}")
     prog = out / "aarch64" / "pybullet_progress.tsv"
     if prog.exists():
         with prog.open(encoding="utf-8") as f:
