@@ -26,6 +26,7 @@ import numpy as np
 from .geometry import tum_from_pose
 from .io import Trajectory, write_file_atomic, write_ply, write_trajectory
 from .io.trajectory import write_trajectory_kitti
+from .profiling.machine import cpu_model
 from .progress import Progress
 from .records import PoseRecord, RowRecord
 from .session import FrameEvent, OutputSink, PublishedMap, RunEnd, SessionInfo
@@ -92,26 +93,6 @@ def versions() -> dict:
     return {"lite_vo": __version__, "python": platform.python_version(), "numpy": np.__version__,
             "numba": numba.__version__, "opencv": cv2.__version__, "platform": platform.platform(),
             "machine": platform.machine(), "cpu": cpu_model()}
-
-
-def cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo``; ``platform.processor()`` elsewhere)."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            for line in f:
-                key, _, value = line.partition(":")
-                if key.strip().lower() in ("model name", "hardware", "cpu model"):
-                    return value.strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def _columns(series, names) -> dict[str, np.ndarray]:
-    """Columns of a depth accuracy series (a RowRecord, or a list of row dicts: absent values NaN)."""
-    if isinstance(series, RowRecord):
-        return {n: series.column(n) for n in names}
-    return {n: np.array([r.get(n, np.nan) for r in series], dtype=np.float64) for n in names}
 
 
 def summarize_depth_accuracy(series, skip_s: float = 1.0) -> dict | None:

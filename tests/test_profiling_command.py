@@ -207,3 +207,22 @@ def test_cli_parser_reads_the_paper_profiles_without_numpy():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "False"
+
+
+def test_cpu_model_names_x86_raspberry_pi_and_jetson(tmp_path):
+    from lite_vo.profiling.machine import cpu_model
+    x86 = tmp_path / "x86"
+    x86.write_text("processor\t: 0\nmodel name\t: AMD EPYC 7B13\nflags\t: fpu\n")
+    pi = tmp_path / "pi"
+    pi.write_text("processor\t: 0\nBogoMIPS\t: 108.00\nHardware\t: BCM2835\nModel\t: Raspberry Pi 4 Model B Rev 1.4\n")
+    jetson = tmp_path / "jetson"
+    jetson.write_text("processor\t: 0\nBogoMIPS\t: 62.50\nCPU part\t: 0xd42\n")
+    tree = tmp_path / "model"
+    tree.write_bytes(b"NVIDIA Jetson Orin Nano Developer Kit\x00")
+    none = tmp_path / "absent"
+    assert cpu_model(x86, none) == "AMD EPYC 7B13"
+    assert cpu_model(pi, tree) == "Raspberry Pi 4 Model B Rev 1.4"
+    assert cpu_model(jetson, tree) == "NVIDIA Jetson Orin Nano Developer Kit"
+    hw_only = tmp_path / "hw"
+    hw_only.write_text("Hardware\t: BCM2835\n")
+    assert cpu_model(hw_only, none) == "BCM2835"

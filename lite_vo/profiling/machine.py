@@ -12,23 +12,33 @@ from typing import Any
 
 import numpy as np
 
-#: ``/proc/cpuinfo`` keys that name the CPU, most specific first (x86, ARM boards, MIPS, ...).
-CPU_KEYS = ("model name", "Model", "Hardware", "cpu model", "Processor")
+#: ``/proc/cpuinfo`` keys that name the CPU or board, most specific first (x86, Raspberry Pi, ...).
+CPU_KEYS = ("model name", "Model")
+#: weaker ``/proc/cpuinfo`` keys, used only when the device tree names no board (e.g. Pi's "BCM2835").
+FALLBACK_KEYS = ("Hardware", "cpu model", "Processor")
 
 
-def cpu_model() -> str:
-    """The CPU's name from ``/proc/cpuinfo`` (first of :data:`CPU_KEYS` found), else ``platform``."""
-    try:
-        text = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
-    except OSError:
-        text = ""
+def cpu_model(cpuinfo: str | Path = "/proc/cpuinfo", device_tree: str | Path = "/proc/device-tree/model") -> str:
+    """The CPU's or board's name: ``/proc/cpuinfo``'s ``model name`` (x86) or ``Model`` (Raspberry Pi
+    OS), else the device tree's model (Jetson), else the weaker cpuinfo keys, else ``platform``."""
+    def read(path) -> str:
+        try:
+            return Path(path).read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            return ""
     found: dict[str, str] = {}
-    for line in text.splitlines():
+    for line in read(cpuinfo).splitlines():
         key, sep, value = line.partition(":")
         key, value = key.strip(), value.strip()
-        if sep and key in CPU_KEYS and value:
+        if sep and value:
             found.setdefault(key, value)
     for key in CPU_KEYS:
+        if key in found:
+            return found[key]
+    board = read(device_tree).strip("\x00 \n")
+    if board:
+        return board
+    for key in FALLBACK_KEYS:
         if key in found:
             return found[key]
     return platform.processor() or platform.machine() or "unknown"
