@@ -95,6 +95,13 @@ def versions() -> dict:
             "machine": platform.machine(), "cpu": cpu_model()}
 
 
+def _columns(series, names) -> dict[str, np.ndarray]:
+    """Columns of a depth accuracy series (a RowRecord, or a list of row dicts: absent values NaN)."""
+    if isinstance(series, RowRecord):
+        return {n: series.column(n) for n in names}
+    return {n: np.array([r.get(n, np.nan) for r in series], dtype=np.float64) for n in names}
+
+
 def summarize_depth_accuracy(series, skip_s: float = 1.0) -> dict | None:
     """Contract ``depth_accuracy`` over the mapped frames after the first ``skip_s`` seconds."""
     c = _columns(series, ("t", "density", "median_abs_rel_error", "within_5pct", "within_10pct"))

@@ -23,13 +23,12 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError
-from ..geometry import make_pose, rotmat_from_quat_xyzw
 from ._text import check_increasing, parse_table, read_lines
 from .calib import TUM_DEPTH_SCALE, Calibration, freiburg_camera, freiburg_number
 from .calib_formats import load_calibration, read_calibration, read_euroc_camera_yaml, read_sensor_transform
-from .trajectory import read_euroc_groundtruth, read_trajectory
 from .base import Sequence
-from .types import Accelerometer, Frame, Trajectory
+from .trajectory import read_euroc_groundtruth, read_trajectory
+from .types import Accelerometer, Frame
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
