@@ -144,7 +144,9 @@ def _process_calls(path: Path) -> list[int]:
 def test_exactly_one_module_drives_frames():
     files = [p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")] + list((ROOT / "tools").glob("*.py"))
     drivers = {str(p.relative_to(ROOT)) for p in files if _process_calls(p)}
-    assert drivers == {"lite_vo/session.py"}
+    # tools/bench_memory.py measures a bare loop over VisualOdometry.process on purpose (issue 18:
+    # the Python API without the session); it drives no run of the program
+    assert drivers - {"tools/bench_memory.py"} == {"lite_vo/session.py"}
 
 
 @pytest.mark.parametrize("module", sorted(MODULES))
