@@ -36,16 +36,20 @@ class PoseRecord:
     def __contains__(self, index: int) -> bool:
         return self._row(index) is not None
 
-    def _row(self, index: int) -> int | None:
+    def _row(self, index: int, removed_too: bool = False) -> int | None:
         i = int(np.searchsorted(self._index[:self._n], index))
-        return i if i < self._n and self._index[i] == index and self._ok[i] else None
+        found = i < self._n and self._index[i] == index
+        return i if found and (removed_too or self._ok[i]) else None
 
     def add(self, index: int, timestamp: float, T_world_cam: np.ndarray) -> None:
         """The pose of frame ``index`` (a later frame than every one added so far, or one replaced)."""
-        i = self._row(index)
+        i = self._row(index, removed_too=True)
         if i is not None:
             self._T[i] = T_world_cam
             self._t[i] = timestamp
+            if not self._ok[i]:
+                self._ok[i] = True
+                self._count += 1
             return
         if self._n and index <= self._index[self._n - 1]:
             raise ValueError(f"frame {index} added after frame {int(self._index[self._n - 1])}")

@@ -145,7 +145,9 @@ def test_exactly_one_module_drives_frames():
     # the packages; tools/ may call the engine directly to measure it (e.g. a bare API loop)
     files = [p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")]
     drivers = {str(p.relative_to(ROOT)) for p in files if _process_calls(p)}
-    assert drivers == {"lite_vo/session.py"}
+    # tools/bench_memory.py measures a bare loop over VisualOdometry.process on purpose (issue 18:
+    # the Python API without the session); it drives no run of the program
+    assert drivers - {"tools/bench_memory.py"} == {"lite_vo/session.py"}
 
 
 @pytest.mark.parametrize("module", sorted(MODULES))

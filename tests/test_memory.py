@@ -64,7 +64,7 @@ def test_timers_keep_every_value_in_about_4_bytes_and_summarise_them_exactly():
 
 def test_pose_record_behaves_as_the_dict_it_replaces():
     rng = np.random.default_rng(1)
-    rec, ref = PoseRecord(), {}
+    rec, ref, removed = PoseRecord(), {}, []
     for i in range(300):
         if rng.random() < 0.2:                     # lost frame: no pose
             continue
@@ -77,12 +77,16 @@ def test_pose_record_behaves_as_the_dict_it_replaces():
             if rng.random() < 0.5:
                 assert rec.correct(j, None)
                 del ref[j]
+                removed.append(j)
             else:
                 T2 = np.eye(4)
                 T2[:3, 3] = rng.normal(size=3)
                 assert rec.correct(j, T2)
                 ref[j] = (ref[j][0], T2)
     assert not rec.correct(10_000, np.eye(4))       # never recorded
+    assert removed
+    rec.add(removed[0], 0.1 * removed[0], np.eye(4))  # a removed pose given again comes back
+    ref[removed[0]] = (0.1 * removed[0], np.eye(4))
     idx, ts, poses = rec.arrays()
     order = sorted(ref)
     assert len(rec) == len(order) and idx.tolist() == order
