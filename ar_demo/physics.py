@@ -17,6 +17,11 @@ Imports: numpy, pybullet, pybullet_data, lite_vo (errors, geometry).
 """
 from __future__ import annotations
 
+import ctypes
+import os
+import sys
+from contextlib import contextmanager
+
 import math
 from dataclasses import dataclass, field
 
@@ -30,23 +35,51 @@ WHEELS = (2, 3, 5, 7)     # racecar.urdf joint indices of the driven wheels
 STEERING = (4, 6)         # racecar.urdf joint indices of the steering hinges
 
 
-def import_pybullet():
-    """``(pybullet, pybullet_data)``, imported without pybullet's build-time banner (it prints from C
-    straight to file descriptor 1 on import, which ``--quiet`` and piped JSON output must not see)."""
-    import os
-    import sys
+@contextmanager
+def c_stdout_silenced():
+    """Silence what C code prints to file descriptor 1 inside the block (pybullet prints a build-time
+    banner on every ``connect``, which ``--quiet`` and piped output must not see)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    devnull = os.open(os.devnull, os.O_WRONLY)
     try:
-        if "pybullet" not in sys.modules:
-            sys.stdout.flush()
-            saved = os.dup(1)
-            devnull = os.open(os.devnull, os.O_WRONLY)
-            try:
-                os.dup2(devnull, 1)
-                import pybullet  # noqa: F401
-            finally:
-                os.dup2(saved, 1)
-                os.close(saved)
-                os.close(devnull)
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        try:
+            ctypes.CDLL(None).fflush(None)   # what C buffered (stdout is a pipe) goes to /dev/null too
+        except (OSError, AttributeError):
+            pass
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+
+
+_EXIT_SILENCED: list[bool] = []
+
+
+def _silence_c_stdout_at_exit() -> None:
+    sys.stdout.flush()
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    os.close(devnull)
+
+
+def connect_direct(pb) -> int:
+    """``pb.connect(pb.DIRECT)`` without pybullet's build-time banner, which it prints on connect and,
+    when stdout is a pipe or file, again from C when the process exits (so, once a client was made,
+    descriptor 1 goes to /dev/null after Python's own output at exit)."""
+    if not _EXIT_SILENCED:
+        import atexit
+        atexit.register(_silence_c_stdout_at_exit)
+        _EXIT_SILENCED.append(True)
+    with c_stdout_silenced():
+        return pb.connect(pb.DIRECT)
+
+
+def import_pybullet():
+    """``(pybullet, pybullet_data)``, or a one-line error naming the ``[ar]`` extra."""
+    try:
         import pybullet
         import pybullet_data
     except ImportError as err:
@@ -61,7 +94,7 @@ def racecar_length() -> float:
     """Length (physics units) of the pybullet racecar, measured once from its link AABBs."""
     if not _CAR_LENGTH:
         pb, pbd = import_pybullet()
-        c = pb.connect(pb.DIRECT)
+        c = connect_direct(pb)
         try:
             pb.setAdditionalSearchPath(pbd.getDataPath(), physicsClientId=c)
             car = pb.loadURDF("racecar/racecar.urdf", physicsClientId=c)
@@ -198,7 +231,7 @@ class PhysicsWorld:
         pb, pbd = import_pybullet()
         self._pb = pb
         self._data = pbd.getDataPath()
-        self.client = pb.connect(pb.DIRECT)
+        self.client = connect_direct(pb)
         pb.setGravity(0, 0, -GRAVITY, physicsClientId=self.client)
         pb.setTimeStep(1.0 / self.cfg.physics_hz, physicsClientId=self.client)
         pb.setAdditionalSearchPath(self._data, physicsClientId=self.client)

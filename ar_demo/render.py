@@ -305,9 +305,9 @@ def project_points(intr: PinholeIntrinsics, T_world_cam: np.ndarray, points_worl
 
 def load_racecar_parts() -> list[MeshPart]:
     """The racecar's visual meshes (a throw-away DIRECT pybullet client reads the URDF)."""
-    import pybullet as pb
-    import pybullet_data
-    c = pb.connect(pb.DIRECT)
+    from .physics import connect_direct, import_pybullet
+    pb, pybullet_data = import_pybullet()
+    c = connect_direct(pb)
     try:
         pb.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=c)
         car = pb.loadURDF(str(Path("racecar") / "racecar.urdf"), physicsClientId=c)
