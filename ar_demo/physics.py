@@ -36,22 +36,26 @@ STEERING = (4, 6)         # racecar.urdf joint indices of the steering hinges
 
 
 @contextmanager
-def c_stdout_silenced():
-    """Silence what C code prints to file descriptor 1 inside the block (pybullet prints a build-time
-    banner on every ``connect``, which ``--quiet`` and piped output must not see)."""
+def c_stdout_silenced(fds=(1,)):
+    """Silence what C code prints to the file descriptors ``fds`` inside the block (pybullet prints a
+    build-time banner to stderr on import and to stdout on ``connect``/``disconnect``, which
+    ``--quiet`` and piped output must not see)."""
     sys.stdout.flush()
-    saved = os.dup(1)
+    sys.stderr.flush()
+    saved = [os.dup(fd) for fd in fds]
     devnull = os.open(os.devnull, os.O_WRONLY)
     try:
-        os.dup2(devnull, 1)
+        for fd in fds:
+            os.dup2(devnull, fd)
         yield
     finally:
         try:
             ctypes.CDLL(None).fflush(None)   # what C buffered (stdout is a pipe) goes to /dev/null too
         except (OSError, AttributeError):
             pass
-        os.dup2(saved, 1)
-        os.close(saved)
+        for fd, keep in zip(fds, saved):
+            os.dup2(keep, fd)
+            os.close(keep)
         os.close(devnull)
 
 
@@ -66,9 +70,9 @@ def _silence_c_stdout_at_exit() -> None:
 
 
 def connect_direct(pb) -> int:
-    """``pb.connect(pb.DIRECT)`` without pybullet's build-time banner, which it prints on connect and,
-    when stdout is a pipe or file, again from C when the process exits (so, once a client was made,
-    descriptor 1 goes to /dev/null after Python's own output at exit)."""
+    """``pb.connect(pb.DIRECT)`` without pybullet's build-time banner, which it prints on connect and
+    again when a client goes away (also at exit: so, once a client was made, descriptor 1 goes to
+    /dev/null after Python's own output at exit)."""
     if not _EXIT_SILENCED:
         import atexit
         atexit.register(_silence_c_stdout_at_exit)
@@ -77,9 +81,19 @@ def connect_direct(pb) -> int:
         return pb.connect(pb.DIRECT)
 
 
+def disconnect_quietly(pb, client: int) -> None:
+    """``pb.disconnect`` without the banner (pybullet prints it again when a client goes away)."""
+    with c_stdout_silenced():
+        pb.disconnect(physicsClientId=client)
+
+
 def import_pybullet():
-    """``(pybullet, pybullet_data)``, or a one-line error naming the ``[ar]`` extra."""
+    """``(pybullet, pybullet_data)`` (imported without its banner), or a one-line error naming the
+    ``[ar]`` extra."""
     try:
+        if "pybullet" not in sys.modules:
+            with c_stdout_silenced((1, 2)):
+                import pybullet  # noqa: F401
         import pybullet
         import pybullet_data
     except ImportError as err:
@@ -104,7 +118,7 @@ def racecar_length() -> float:
                 lo, hi = np.minimum(lo, a), np.maximum(hi, b)
             _CAR_LENGTH.append(float(hi[0] - lo[0]))
         finally:
-            pb.disconnect(physicsClientId=c)
+            disconnect_quietly(pb, c)
     return _CAR_LENGTH[0]
 
 
@@ -371,7 +385,7 @@ class PhysicsWorld:
     def close(self) -> None:
         if self.client >= 0:
             try:
-                self._pb.disconnect(physicsClientId=self.client)
+                disconnect_quietly(self._pb, self.client)
             except Exception:  # pragma: no cover - already disconnected
                 pass
             self.client = -1

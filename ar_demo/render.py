@@ -305,7 +305,7 @@ def project_points(intr: PinholeIntrinsics, T_world_cam: np.ndarray, points_worl
 
 def load_racecar_parts() -> list[MeshPart]:
     """The racecar's visual meshes (a throw-away DIRECT pybullet client reads the URDF)."""
-    from .physics import connect_direct, import_pybullet
+    from .physics import connect_direct, disconnect_quietly, import_pybullet
     pb, pybullet_data = import_pybullet()
     c = connect_direct(pb)
     try:
@@ -313,4 +313,4 @@ def load_racecar_parts() -> list[MeshPart]:
         car = pb.loadURDF(str(Path("racecar") / "racecar.urdf"), physicsClientId=c)
         return car_parts_from_visual_shapes(pb.getVisualShapeData(car, physicsClientId=c))
     finally:
-        pb.disconnect(physicsClientId=c)
+        disconnect_quietly(pb, c)

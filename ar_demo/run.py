@@ -20,6 +20,7 @@ import lite_vo
 from lite_vo.errors import InputError
 from lite_vo.session import Session
 from lite_vo.sinks import TrajectorySink
+from lite_vo.viewer import RerunSink
 
 from .config import ARConfig
 from .sink import ARSink
@@ -61,7 +62,9 @@ def run_ar(sequence_path, out_video, profile: str = "phone", poses: str = "estim
     car_out = out_dir / "car.txt" if car_out is None else car_out
     trajectory_out = out_dir / "trajectory.txt" if trajectory_out is None else trajectory_out
     summary_out = out_dir / "ar_summary.json" if summary_out is None else Path(summary_out)
-    ar = ARSink(cfg, out_video, fps=fps, metric=True if poses == "gt" else None, mesh_out=mesh_out, car_out=car_out)
+    viewer = next((k for k in sinks if isinstance(k, RerunSink)), None)
+    ar = ARSink(cfg, out_video, fps=fps, metric=True if poses == "gt" else None, mesh_out=mesh_out, car_out=car_out,
+                viewer=viewer)
     own = [ar, TrajectorySink(trajectory_out, comment="T_world_cam")]
     if not quiet:
         own.append(ProgressSink())

@@ -32,8 +32,10 @@ class ARSink(OutputSink):
     wants_image = True
 
     def __init__(self, cfg: ARConfig, out_video, fps: float = 30.0, metric: bool | None = None,
-                 renderer=None, mesh_out=None, car_out=None) -> None:
+                 renderer=None, mesh_out=None, car_out=None, viewer=None) -> None:
         self.cfg = cfg
+        self.viewer = viewer                     # a lite_vo.viewer.RerunSink: the world and the car go there too
+        self._viewed_field = None
         self.out_video = Path(out_video)
         self.fps = float(cfg.video_fps or fps)
         self._metric_auto = metric is None and not cfg.metric
@@ -130,6 +132,8 @@ class ARSink(OutputSink):
                 if self._car_file is not None:
                     from lite_vo.sinks import tum_line
                     self._car_file.write(tum_line(ts, T_car))
+            if self.viewer is not None:
+                self._show(result.index, ts, T_car)
         self.video.put(self._job(event, T, the_map))
         self._frames += 1
         self.times["frame"].append((time.perf_counter() - t_frame) * 1e3)
@@ -158,6 +162,17 @@ class ARSink(OutputSink):
         if self._field_mesh is None or self._field_mesh[0] is not field:
             self._field_mesh = (field, field_mesh(field, self.world.physics.frame))
         return self._field_mesh[1]
+
+    def _show(self, index: int, ts: float, T_car) -> None:
+        """The collision world (when it changed) and the car in the viewer."""
+        world = self.world
+        if world.field is not None and world.field is not self._viewed_field:
+            mesh = self._world_mesh()
+            if mesh is not None:
+                self.viewer.log_mesh(index, ts, "world/ar/collision", *mesh)
+            self._viewed_field = world.field
+        if T_car is not None:
+            self.viewer.log_box(index, ts, "world/ar/car", T_car, world.car_length_world)
 
     def _keyframes(self) -> list:
         return self.keyframes.current() if self.keyframes is not None else []

@@ -98,3 +98,12 @@ def test_depth_series_prefers_the_aligned_error_and_the_run_folder_file(tmp_path
     assert [x["t"] for x in s] == [0.0, 0.5]
     assert s[1]["median_abs_rel_error"] == 0.1 and s[1]["median_abs_rel_error_raw"] == 0.6
     assert Res.depth_error_series({"depth_accuracy": {"frames": 3}}) == []
+
+
+def test_the_run_command_passes_the_calibration_on():
+    from pathlib import Path
+    from lite_vo.profiling.sweep import RunSpec, build_run_command
+    spec = RunSpec("clip.mp4", "clip", "phone", 0, Path("out"), calib="cam.yaml")
+    cmd = build_run_command(spec)
+    assert cmd[cmd.index("--calib") + 1] == "cam.yaml"
+    assert "--calib" not in build_run_command(RunSpec("seq", "seq", "phone", 0, Path("out")))

@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lite_vo.cli.common import add_viewer_args, viewer_sinks
+
 AR_EXTRA_MESSAGE = "the AR demo needs the [ar] extra: pip install 'lite-vo[ar]'"
 
 
@@ -41,6 +43,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--topic", default=None, help="image topic of a ROS bag (needed when it has several)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    add_viewer_args(p)
     return p
 
 
@@ -81,7 +84,8 @@ def run(args) -> int:
     summary = ar_run.run_ar(args.sequence, out, profile=args.profile, poses=args.poses,
                             max_frames=args.max_frames, cfg=cfg, panels=args.panels or None,
                             overrides=args.overrides, trajectory_out=args.trajectory, mesh_out=args.mesh,
-                            quiet=args.quiet, vo_mode=args.mode, calib=args.calib, topic=args.topic)
+                            quiet=args.quiet, vo_mode=args.mode, calib=args.calib, topic=args.topic,
+                            sinks=viewer_sinks(args))
     t = summary["timing_ms"]
     if not summary["frames_written"]:
         raise InputError(f"{args.sequence}: no frames were processed, no video written")

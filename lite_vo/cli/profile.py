@@ -58,6 +58,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-startup", action="store_true", help="skip the cold vs warm start-up measurement")
     p.add_argument("--no-plots", action="store_true", help="write no PNG plots (no matplotlib needed)")
     p.add_argument("--force", action="store_true", help="overwrite the report and runs in an existing --out folder")
+    p.add_argument("--calib", default=None,
+                   help="calibration file for the sequences (calib.txt, OpenCV/Kalibr/ROS YAML), passed to every run")
     p.add_argument("--quiet", action="store_true",
                    help="no progress lines on stderr (warm-up, each run, the start-up probe); warnings still show")
     return p
@@ -89,7 +91,8 @@ def run(args) -> int:
         out=Path(args.out), workers=args.workers, pin_core=args.pin_core, max_frames=args.max_frames,
         init=args.init, force=args.force, init_study=args.init_study, init_study_len=args.init_study_len,
         max_lost_ratio=args.max_lost_ratio, warmup=not args.no_warmup, startup=not args.no_startup,
-        plots=not args.no_plots, overrides=list(args.overrides))
+        plots=not args.no_plots, overrides=list(args.overrides),
+        calib=str(args.calib) if args.calib is not None else None)
 
     def log(msg: str) -> None:
         if not args.quiet or msg.startswith("warning"):

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import add_profile_args, config_from_args
+from .common import add_profile_args, add_viewer_args, config_from_args, viewer_sinks
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -39,6 +39,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="kitti: also write trajectory_kitti.txt (+ times.txt) for KITTI tables (trajectory.txt stays TUM)")
     p.add_argument("--plot", action="store_true",
                    help="also draw trajectory.png (against the ground truth when the sequence has one; needs matplotlib)")
+    add_viewer_args(p)
     p.add_argument("--max-bad-frames", type=int, default=10,
                    help="unreadable frames in a row that are skipped before the run stops with an error (default 10)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -61,13 +62,14 @@ def run(args) -> int:
     config = config_from_args(args, extra=overrides)
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError(f"--max-frames must be positive, got {args.max_frames}")
+    sinks = viewer_sinks(args)
     source = int(args.sequence) if args.sequence.isdigit() else args.sequence
     seq = open_sequence(source, calib=args.calib, topic=args.topic)
     out = args.out or Path("lite_vo_out") / seq.name
     res = run_sequence(seq, config, out, force=args.force, depth_source=args.depth, pose_source=args.poses,
                        max_frames=args.max_frames, start_frame=args.start_frame, quiet=args.quiet,
                        profile_name=args.profile, max_bad_frames=args.max_bad_frames,
-                       kitti=args.format == "kitti", plot=args.plot, photometric=args.photometric)
+                       kitti=args.format == "kitti", plot=args.plot, photometric=args.photometric, sinks=sinks)
     c = res.info["frames"]
     skipped = f", {c['skipped']} unreadable skipped" if c.get("skipped") else ""
     msg = (f"{seq.name}: {res.status}; {c['tracked']} of {c['in']} frames tracked, {c['lost']} lost, "

@@ -48,6 +48,7 @@ class ProfileSettings:
     plots: bool = True
     delta_s: float = 1.0
     overrides: list[str] = field(default_factory=list)
+    calib: str | None = None
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -96,7 +97,7 @@ def sweep_specs(s: ProfileSettings, seq_names: list[str], out: Path) -> list[Run
     """Every (repetition, sequence, profile) run of the sweep."""
     return [RunSpec(sequence=seq, seq_name=name, profile=p, rep=k,
                     out_dir=out / "runs" / name / profile_label(p) / str(k), init=s.init,
-                    max_frames=s.max_frames, pin_core=s.pin_core, overrides=tuple(s.overrides))
+                    max_frames=s.max_frames, pin_core=s.pin_core, overrides=tuple(s.overrides), calib=s.calib)
             for k in range(s.repeat) for name, seq in zip(seq_names, s.sequences) for p in s.profiles]
 
 
@@ -145,7 +146,8 @@ class Sweep:
         specs = []
         for name, seq in zip(self.seq_names, s.sequences):
             specs += plan_init_study(seq, name, s.init_study, s.init_study_len, self.out / "init_study",
-                                     profile=prof, pin_core=s.pin_core, overrides=tuple(s.overrides))
+                                     profile=prof, pin_core=s.pin_core, overrides=tuple(s.overrides),
+                                     calib=s.calib)
         self.log(f"initialisation study: {len(specs)} runs on {self.workers} worker(s)")
         records = [judge_init_run(self.collect(spec, o, max_lost_ratio=1.0), self.gts.get(spec.seq_name))
                    for spec, o in zip(specs, self.run(specs))]

@@ -50,7 +50,8 @@ def frame_timestamps(sequence: str | os.PathLike) -> np.ndarray:
 
 def plan_init_study(sequence: str, seq_name: str, n: int, length_s: float, out_dir: Path,
                     profile: str = "phone", pin_core: bool = False,
-                    timestamps: np.ndarray | None = None, overrides: tuple[str, ...] = ()) -> list[RunSpec]:
+                    timestamps: np.ndarray | None = None, overrides: tuple[str, ...] = (),
+                    calib: str | None = None) -> list[RunSpec]:
     """``n`` random-init sub-sequences of ``length_s`` seconds from evenly spaced start frames.
 
     Sub-sequence i starts at frame ``s_i`` (evenly spread over the frames that leave
@@ -72,7 +73,7 @@ def plan_init_study(sequence: str, seq_name: str, n: int, length_s: float, out_d
         specs.append(RunSpec(sequence=sequence, seq_name=seq_name, profile=profile, rep=i,
                              out_dir=out_dir / seq_name / f"{i:03d}", init="random",
                              max_frames=max(m, 2), start_frame=s, seed=i + 1, pin_core=pin_core,
-                             kind="init", overrides=tuple(overrides)))
+                             kind="init", overrides=tuple(overrides), calib=calib))
     return specs
 
 

@@ -40,6 +40,7 @@ class RunSpec:
     pin_core: bool = False
     kind: str = "sweep"            # "sweep" or "init"
     overrides: tuple[str, ...] = ()
+    calib: str | None = None       # a calibration file for the sequence (--calib)
 
     @property
     def key(self) -> str:
@@ -102,6 +103,8 @@ def build_run_command(spec: RunSpec) -> list[str]:
         cmd += ["--max-frames", str(int(spec.max_frames))]
     if spec.start_frame is not None:
         cmd += ["--start-frame", str(int(spec.start_frame))]
+    if spec.calib is not None:
+        cmd += ["--calib", str(spec.calib)]
     overrides = list(spec.overrides)
     if spec.seed is not None:
         overrides.append(f"system.seed={int(spec.seed)}")
