@@ -158,7 +158,8 @@ class Session:
         if max_bad_frames < 0:
             raise InputError(f"--max-bad-frames must be >= 0, got {max_bad_frames}")
         seq = source
-        if isinstance(source, (str, Path, int)):
+        self._owns_sequence = isinstance(source, (str, Path, int))
+        if self._owns_sequence:
             seq = open_sequence(source, calib=calib, topic=topic)
         self.sequence = seq
         self.config = config
@@ -273,9 +274,8 @@ class Session:
                     if T_given is None:
                         vo.note_dropped()
                         continue
-                color = getattr(fr, "color", None)     # the VO keeps colour for its keyframes
-                res = vo.process(fr.image if color is None else color, fr.timestamp, depth=fr.depth,
-                                 T_world_cam=T_given)
+                res = vo.process(fr.image, fr.timestamp, depth=fr.depth, T_world_cam=T_given,
+                                 color=getattr(fr, "color", None))   # colour for the keyframes' cloud
                 last_index = fr.index
                 if res.event:
                     events.append({"frame": res.index, "t": res.timestamp, "event": res.event})
@@ -321,7 +321,8 @@ class Session:
                 s.on_finish(end)
             except Exception as err:       # noqa: BLE001 - re-raised below
                 finish_error = finish_error or err
-        seq.close()
+        if self._owns_sequence:
+            seq.close()
         if exc is not None:
             raise exc
         if finish_error is not None:

@@ -230,15 +230,17 @@ class VisualOdometry:
         return self._initialized
 
     def process(self, image: np.ndarray, timestamp: float, depth: np.ndarray | None = None,
-                T_world_cam: np.ndarray | None = None) -> FrameResult:
+                T_world_cam: np.ndarray | None = None, color: np.ndarray | None = None) -> FrameResult:
         """Track one frame (and map it, in sync mode, when it is its turn).
 
-        ``depth`` (metres, 0 = invalid, camera resolution) is used for depth initialisation and in
+        ``image``: grey, or BGR (then converted here); ``color``: the BGR image of a grey ``image``
+        when the caller has both (keyframes keep colour for the point cloud). ``depth`` (metres,
+        0 = invalid, camera resolution) is used for depth initialisation and in
         ``depth_source="images"``; ``T_world_cam`` is required with ``pose_source="given"``.
         """
         self._check_input(image, timestamp, T_world_cam)
         t_start = time.perf_counter()
-        frame = self._preprocess(image, timestamp, depth)
+        frame = self._preprocess(image, timestamp, depth, color)
         self.counts["in"] += 1
         if self._map_error is not None:
             raise LiteVOError(f"mapping thread failed: {self._map_error}") from self._map_error
@@ -331,11 +333,12 @@ class VisualOdometry:
             if not np.all(np.isfinite(T_world_cam)):
                 raise InputError(f"pose at t={timestamp} contains NaN")
 
-    def _preprocess(self, image: np.ndarray, timestamp: float, depth: np.ndarray | None) -> _Frame:
+    def _preprocess(self, image: np.ndarray, timestamp: float, depth: np.ndarray | None,
+                    color: np.ndarray | None = None) -> _Frame:
         t = time.perf_counter()
-        color = None
         if image.ndim == 3:
-            color = image if image.shape[2] == 3 else None
+            if color is None and image.shape[2] == 3:
+                color = image
             image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         if self._photometric is not None:
             image = self._photometric.correct(image, self._photometric.exposure_at(timestamp))
