@@ -102,3 +102,29 @@ def test_run_writes_kitti_and_a_picture_on_request(synth_small, tmp_path):
     import cv2
     img = cv2.imread(str(out / "trajectory.png"))
     assert img is not None and img.shape[:2] == (1000, 1500) and img.std() > 5
+
+
+def test_run_calib_option_on_an_image_folder_without_calib_txt(synth_small, tmp_path, capsys):
+    import shutil
+
+    import cv2
+
+    from lite_vo.io import read_calib_txt
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for f in sorted((synth_small / "rgb").iterdir())[:12]:
+        shutil.copy(f, folder / f.name)
+    assert main(["run", str(folder), "--out", str(tmp_path / "no"), "--quiet"]) == 1
+    assert "calib" in capsys.readouterr().err                     # says what is missing
+    cam = read_calib_txt(synth_small / "calib.txt").camera
+    yaml = tmp_path / "camera.yaml"                                # OpenCV's own format
+    fs = cv2.FileStorage(str(yaml), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", cam.width)
+    fs.write("image_height", cam.height)
+    fs.write("camera_matrix", cam.intrinsics.K)
+    fs.write("distortion_coefficients", np.zeros((1, 5)))
+    fs.release()
+    out = tmp_path / "out"
+    assert main(["run", str(folder), "--out", str(out), "--quiet", "--calib", str(yaml), "--init", "random"]) == 0
+    assert "12 of 12 frames tracked" in capsys.readouterr().out
+    assert len(read_trajectory(out / "trajectory.txt")) == 12
