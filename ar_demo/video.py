@@ -25,6 +25,7 @@ import numpy as np
 
 from lite_vo.camera import PinholeIntrinsics
 from lite_vo.errors import InputError
+from lite_vo.viewer import colorize_idepth  # noqa: F401  (the paper's depth colours, also for the panels)
 
 
 class VideoWriter:
@@ -59,23 +60,6 @@ class VideoWriter:
 
     def __exit__(self, *exc):
         self.close()
-
-
-def colorize_idepth(idepth: np.ndarray, size_wh: tuple[int, int] | None = None,
-                    lo: float | None = None, hi: float | None = None) -> np.ndarray:
-    """RGB uint8 image of an inverse-depth map: near red, far blue (jet), black where empty."""
-    d = np.asarray(idepth, dtype=np.float64)
-    ok = np.isfinite(d) & (d > 0)
-    out = np.zeros(d.shape + (3,), np.uint8)
-    if ok.any():
-        lo = np.percentile(d[ok], 2) if lo is None else lo
-        hi = np.percentile(d[ok], 98) if hi is None else hi
-        t = np.clip((np.where(ok, d, lo) - lo) / max(hi - lo, 1e-12), 0, 1)
-        jet = cv2.applyColorMap((t * 255).astype(np.uint8), cv2.COLORMAP_JET)[..., ::-1]
-        out[ok] = jet[ok]
-    if size_wh is not None and out.shape[1::-1] != tuple(size_wh):
-        out = cv2.resize(out, tuple(size_wh), interpolation=cv2.INTER_NEAREST)
-    return out
 
 
 def label(img: np.ndarray, text: str) -> np.ndarray:

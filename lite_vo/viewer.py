@@ -31,16 +31,21 @@ def import_rerun():
     return rerun
 
 
-def colorize_idepth(idepth: np.ndarray) -> np.ndarray:
-    """RGB uint8 image of an inverse-depth map (NaN = empty, black): near red, far blue."""
+def colorize_idepth(idepth: np.ndarray, size_wh: tuple[int, int] | None = None,
+                    lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    """RGB uint8 image of an inverse-depth map as in the paper: near red, far blue (jet over the 2-98 %
+    range unless ``lo``/``hi`` are given), black where empty (NaN); resized to ``size_wh`` if given."""
     d = np.asarray(idepth, dtype=np.float64)
     ok = np.isfinite(d) & (d > 0)
     out = np.zeros(d.shape + (3,), np.uint8)
     if ok.any():
-        lo, hi = np.percentile(d[ok], 2), np.percentile(d[ok], 98)
+        lo = np.percentile(d[ok], 2) if lo is None else lo
+        hi = np.percentile(d[ok], 98) if hi is None else hi
         t = np.clip((np.where(ok, d, lo) - lo) / max(hi - lo, 1e-12), 0, 1)
         jet = cv2.applyColorMap((t * 255).astype(np.uint8), cv2.COLORMAP_JET)[..., ::-1]
         out[ok] = jet[ok]
+    if size_wh is not None and out.shape[1::-1] != tuple(size_wh):
+        out = cv2.resize(out, tuple(size_wh), interpolation=cv2.INTER_NEAREST)
     return out
 
 
