@@ -486,6 +486,10 @@ class Rectifier:
             return np.array(img, dtype=np.float32)     # never hand out the caller's buffer
         return np.ascontiguousarray(img, dtype=np.float32)
 
+    def color(self, bgr: np.ndarray) -> np.ndarray:
+        """Rectified, resized float32 (H, W, 3) image of a native 3-channel image, channel by channel."""
+        return np.dstack([self(np.ascontiguousarray(bgr[..., c])) for c in range(3)])
+
     def depth(self, depth_m: np.ndarray) -> np.ndarray:
         """Depth image (metres, 0 or NaN = invalid) in the output geometry: for each output pixel the
         valid native depth nearest to its source location within the pixel's footprint; depths are

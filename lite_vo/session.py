@@ -205,8 +205,7 @@ class Session:
         rect = self._full_resolution()
         color = getattr(fr, "color", None)
         if color is not None and color.ndim == 3:
-            chans = [rect(np.ascontiguousarray(color[..., c])) for c in range(3)]
-            img = np.dstack(chans)
+            img = rect.color(color)
         else:
             img = rect(fr.image)
         return np.clip(img + 0.5, 0, 255).astype(np.uint8)

@@ -372,7 +372,7 @@ class VisualOdometry:
             return
         color = None
         if frame.color is not None:
-            color = np.dstack([self._rectifier(np.ascontiguousarray(frame.color[..., c])) for c in range(3)])
+            color = self._rectifier.color(frame.color)
         self.keyframes.add(Keyframe.make(m.frame_index, m.timestamp, m.T_world_cam, m.camera, m.image, m.idepth,
                                          m.idepth_var, color, self._scale_id))
 
