@@ -111,28 +111,41 @@ def _bilinear(img, x, y):
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
 def gradients_kernel(img, gx, gy, maxgrad):
-    """Half central differences (0 on the 1-pixel border) and the 3x3 max filter of |g|."""
+    """Half central differences (0 on the 1-pixel border) and the 3x3 max filter of |g|.
+
+    float32 throughout, branch-free rows (vectorised); the max filter is separable (rows, then columns)."""
     h, w = img.shape
     mag = np.zeros((h, w), np.float32)
+    rowmax = np.zeros((h, w), np.float32)
     for y in prange(h):
-        for x in range(w):
-            if x == 0 or y == 0 or x == w - 1 or y == h - 1:
+        if y == 0 or y == h - 1:
+            for x in range(w):
                 gx[y, x] = 0.0
                 gy[y, x] = 0.0
-                continue
-            a = 0.5 * (np.float64(img[y, x + 1]) - img[y, x - 1])
-            b = 0.5 * (np.float64(img[y + 1, x]) - img[y - 1, x])
+            continue
+        gx[y, 0] = 0.0
+        gy[y, 0] = 0.0
+        gx[y, w - 1] = 0.0
+        gy[y, w - 1] = 0.0
+        for x in range(1, w - 1):
+            a = np.float32(0.5) * (img[y, x + 1] - img[y, x - 1])
+            b = np.float32(0.5) * (img[y + 1, x] - img[y - 1, x])
             gx[y, x] = a
             gy[y, x] = b
             mag[y, x] = math.sqrt(a * a + b * b)
     for y in prange(h):
+        if w == 1:
+            rowmax[y, 0] = mag[y, 0]
+            continue
+        rowmax[y, 0] = max(mag[y, 0], mag[y, 1])
+        rowmax[y, w - 1] = max(mag[y, w - 2], mag[y, w - 1])
+        for x in range(1, w - 1):
+            rowmax[y, x] = max(max(mag[y, x - 1], mag[y, x]), mag[y, x + 1])
+    for y in prange(h):
+        y0 = max(y - 1, 0)
+        y1 = min(y + 1, h - 1)
         for x in range(w):
-            m = 0.0
-            for yy in range(max(y - 1, 0), min(y + 2, h)):
-                for xx in range(max(x - 1, 0), min(x + 2, w)):
-                    if mag[yy, xx] > m:
-                        m = mag[yy, xx]
-            maxgrad[y, x] = m
+            maxgrad[y, x] = max(max(rowmax[y0, x], rowmax[y, x]), rowmax[y1, x])
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
@@ -645,54 +658,76 @@ def regularize_kernel(st, prm, o_valid):
     (``o_valid = 0``, blacklist decremented). ``o_var_s``: var_mode 0 = smallest compatible
     variance (thesis 3.2.3), 1 = the pixel's own variance, 2 = 1 / sum of the weights (LSD-SLAM).
     Parameters ``P_REG_*`` (radius, dist_var, diff_fac, validity_th, var_mode).
+
+    Vectorised: the map is copied once into padded float32 planes (inverse depth NaN where there is
+    no hypothesis, so the compatibility test fails there without a branch), then every row is
+    accumulated offset by offset over the whole row (SIMD), in float32.
     """
     idepth, idepth_var, valid, validity, blacklist = st.idepth, st.idepth_var, st.valid, st.validity, st.blacklist
     o_idepth_s, o_var_s = st.idepth_s, st.var_s
-    radius = int(prm[P_REG_RADIUS])
-    dist_var = prm[P_REG_DIST_VAR]
-    diff_fac = prm[P_REG_DIFF_FAC]
+    r = int(prm[P_REG_RADIUS])
+    dist_var = np.float32(prm[P_REG_DIST_VAR])
+    diff_fac = np.float32(prm[P_REG_DIFF_FAC])
     validity_th = prm[P_REG_VALIDITY_SUM]
     var_mode = int(prm[P_REG_VAR_MODE])
     h, w = idepth.shape
+    hp, wp = h + 2 * r, w + 2 * r
+    D = np.full((hp, wp), np.nan, np.float32)
+    V = np.zeros((hp, wp), np.float32)
+    L = np.zeros((hp, wp), np.float32)
     for y in prange(h):
+        for x in range(w):
+            if valid[y, x] != 0:
+                D[y + r, x + r] = idepth[y, x]
+                V[y + r, x + r] = idepth_var[y, x]
+                L[y + r, x + r] = validity[y, x]
+    nd = 2 * r + 1
+    inv_tab = np.empty(nd * nd, np.float32)
+    for dy in range(nd):
+        for dx in range(nd):
+            inv_tab[dy * nd + dx] = ((dy - r) * (dy - r) + (dx - r) * (dx - r)) * dist_var
+    for y in prange(h):
+        s = np.zeros(w, np.float32)
+        si = np.zeros(w, np.float32)
+        vs = np.zeros(w, np.float32)
+        vmin = np.empty(w, np.float32)
+        dc = D[y + r, r:r + w]
+        vc = V[y + r, r:r + w]
+        for x in range(w):
+            vmin[x] = vc[x]
+        for dy in range(nd):
+            Dr = D[y + dy]
+            Vr = V[y + dy]
+            Lr = L[y + dy]
+            for dx in range(nd):
+                add = inv_tab[dy * nd + dx]
+                for x in range(w):
+                    dn = Dr[x + dx]
+                    vn = Vr[x + dx]
+                    diff = dn - dc[x]
+                    ok = diff_fac * diff * diff <= vn + vc[x]
+                    iv = np.float32(1.0) / (vn + add)
+                    s[x] += dn * iv if ok else np.float32(0.0)
+                    si[x] += iv if ok else np.float32(0.0)
+                    vs[x] += Lr[x + dx] if ok else np.float32(0.0)
+                    if ok and vn < vmin[x]:
+                        vmin[x] = vn
         for x in range(w):
             if valid[y, x] == 0:
                 o_valid[y, x] = 0
                 continue
-            dc = np.float64(idepth[y, x])
-            vc = np.float64(idepth_var[y, x])
-            s = 0.0
-            si = 0.0
-            vsum = 0.0
-            vmin = vc
-            for yy in range(max(y - radius, 0), min(y + radius + 1, h)):
-                for xx in range(max(x - radius, 0), min(x + radius + 1, w)):
-                    if valid[yy, xx] == 0:
-                        continue
-                    dn = np.float64(idepth[yy, xx])
-                    vn = np.float64(idepth_var[yy, xx])
-                    diff = dn - dc
-                    if not (diff_fac * diff * diff <= vn + vc):   # NaN never counts
-                        continue
-                    vsum += validity[yy, xx]
-                    r2 = (xx - x) * (xx - x) + (yy - y) * (yy - y)
-                    iv = 1.0 / (vn + r2 * dist_var)
-                    s += dn * iv
-                    si += iv
-                    if vn < vmin:
-                        vmin = vn
-            if vsum < validity_th:
+            if vs[x] < validity_th:
                 o_valid[y, x] = 0
                 blacklist[y, x] -= 1
                 continue
             o_valid[y, x] = 1
-            o_idepth_s[y, x] = s / si
+            o_idepth_s[y, x] = s[x] / si[x]
             if var_mode == 0:
-                o_var_s[y, x] = vmin
+                o_var_s[y, x] = vmin[x]
             elif var_mode == 1:
-                o_var_s[y, x] = vc
+                o_var_s[y, x] = vc[x]
             else:
-                o_var_s[y, x] = 1.0 / si
+                o_var_s[y, x] = 1.0 / si[x]
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
