@@ -739,6 +739,9 @@ def fill_kernel(st, maxgrad, prm, new_flag):
 
     Writes only EMPTY pixels (and sets ``new_flag`` there); ``valid`` is not modified, so every
     read sees the map before filling. The caller then sets ``valid |= new_flag``.
+
+    The 5x5 sums (validity, idepth/var, 1/var) and the 5x5 minimum of ``ref_id`` over the valid
+    pixels are separable: row sums first (vectorised), then column sums at the candidate pixels.
     """
     idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist, skip = st
     min_grad = prm[P_MIN_GRAD]
@@ -748,30 +751,43 @@ def fill_kernel(st, maxgrad, prm, new_flag):
     new_var = prm[P_INIT_VAR]
     new_validity = prm[P_FILL_VALIDITY]
     h, w = idepth.shape
+    if h < 5 or w < 5:
+        return
+    big = np.iinfo(np.int64).max
+    # horizontal 5-sums (validity, idepth/var, 1/var) and 5-min (ref_id) of the valid pixels
+    hv = np.zeros((h, w), np.float64)
+    hs = np.zeros((h, w), np.float64)
+    hi = np.zeros((h, w), np.float64)
+    hr = np.full((h, w), big, np.int64)
+    for y in prange(h):
+        pv = np.zeros(w, np.float64)
+        ps = np.zeros(w, np.float64)
+        pi = np.zeros(w, np.float64)
+        pr = np.full(w, big, np.int64)
+        for x in range(w):
+            if valid[y, x] != 0:
+                iv = 1.0 / np.float64(idepth_var[y, x])
+                pv[x] = validity[y, x]
+                ps[x] = idepth[y, x] * iv
+                pi[x] = iv
+                pr[x] = ref_id[y, x]
+        for x in range(2, w - 2):
+            hv[y, x] = pv[x - 2] + pv[x - 1] + pv[x] + pv[x + 1] + pv[x + 2]
+            hs[y, x] = ps[x - 2] + ps[x - 1] + ps[x] + ps[x + 1] + ps[x + 2]
+            hi[y, x] = pi[x - 2] + pi[x - 1] + pi[x] + pi[x + 1] + pi[x + 2]
+            hr[y, x] = min(min(min(pr[x - 2], pr[x - 1]), min(pr[x], pr[x + 1])), pr[x + 2])
     for y in prange(2, h - 2):
         for x in range(2, w - 2):
             if valid[y, x] != 0 or maxgrad[y, x] < min_grad:
                 continue
-            vs = 0.0
-            for yy in range(y - 2, y + 3):
-                for xx in range(x - 2, x + 3):
-                    if valid[yy, xx] != 0:
-                        vs += validity[yy, xx]
+            vs = hv[y - 2, x] + hv[y - 1, x] + hv[y, x] + hv[y + 1, x] + hv[y + 2, x]
             if not ((blacklist[y, x] >= min_blacklist and vs > create_th) or vs > unblacklist_th):
                 continue
-            s = 0.0
-            si = 0.0
-            rid = np.int64(-1)
-            for yy in range(y - 2, y + 3):
-                for xx in range(x - 2, x + 3):
-                    if valid[yy, xx] != 0:
-                        iv = 1.0 / idepth_var[yy, xx]
-                        s += idepth[yy, xx] * iv
-                        si += iv
-                        if rid < 0 or ref_id[yy, xx] < rid:
-                            rid = ref_id[yy, xx]
+            si = hi[y - 2, x] + hi[y - 1, x] + hi[y, x] + hi[y + 1, x] + hi[y + 2, x]
             if not (si > 0.0):
                 continue
+            s = hs[y - 2, x] + hs[y - 1, x] + hs[y, x] + hs[y + 1, x] + hs[y + 2, x]
+            rid = min(min(min(hr[y - 2, x], hr[y - 1, x]), min(hr[y, x], hr[y + 1, x])), hr[y + 2, x])
             m = s / si
             idepth[y, x] = m
             idepth_s[y, x] = m
