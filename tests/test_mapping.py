@@ -283,7 +283,7 @@ def _run_propagate(st, img_old, img_new, mg_new, T_new_old, Kc, cfg, aff=(1.0, 0
     out["blacklist"] = st["blacklist"].copy()
     R, t = np.ascontiguousarray(T_new_old[:3, :3]), np.ascontiguousarray(T_new_old[:3, 3])
     res = kernels.propagate_kernel(_ms(st), img_old, img_new, mg_new, R, t, _cam(Kc), mapping_params(cfg),
-                                   np.array(aff, np.float64), _ms(out))
+                                   np.array(aff, np.float64), _ms(out), kernels.propagation_work(h, w))
     return out, res
 
 

@@ -86,6 +86,9 @@ MapState = namedtuple("MapState", ["idepth", "idepth_var", "idepth_s", "var_s", 
 #: (n,) int64, ``R`` / ``t`` (n, 3, 3) / (n, 3) T_ref_cur, ``c`` (n, 3) reference centres in the
 #: current camera, ``residual`` (n,) tracking residual of each reference, ``affine`` (n, 2) the
 #: brightness transfer ``(a, b)`` of each reference into the current frame: ``I_cur ~ a I_ref + b``
+#: scratch of :func:`propagate_kernel` (HxW each): where each hypothesis lands (flat index or a
+#: negative drop code), its new inverse depth and variance, its sub-pixel position in the new frame
+PropagationWork = namedtuple("PropagationWork", ["target", "idepth", "var", "u", "v"])
 RefFrames = namedtuple("RefFrames", ["images", "slots", "ids", "R", "t", "c", "residual", "affine"])
 
 # return codes of line_stereo
@@ -459,14 +462,14 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
             r_var = 0.0
             r_len = 0.0
             used = b
+            gxi = _bilinear(gx, px, py)      # the same for every reference
+            gyi = _bilinear(gy, px, py)
             while b < nref:
                 slot = ref_slots[b]
                 ok, epxn, epyn = epipolar_direction(cur, x, y, px, py, ref_c[b], fx, fy, cx, cy, prm)
                 if not ok:
                     code = NO_EPL
                     break
-                gxi = _bilinear(gx, px, py)
-                gyi = _bilinear(gy, px, py)
                 code, r_id, r_var, r_len, r_err = line_stereo(
                     cur, ref_images[slot], px, py, epxn, epyn, lo, prior, hi, ref_R[b], ref_t[b],
                     fx, fy, cx, cy, gxi, gyi, ref_residual[b], prm, b == nref - 1, ref_aff[b, 0], ref_aff[b, 1],
@@ -536,12 +539,17 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
             status[y, x] = 1
 
 
-@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
-def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, new):
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
+def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, new, work):
     """Forward-warp every hypothesis of the map ``old`` into the map ``new`` of the new frame
-    (both :class:`MapState`; serial: collisions). ``R, t`` = T_new_old; ``cam = (fx, fy, cx, cy)``;
+    (both :class:`MapState`). ``R, t`` = T_new_old; ``cam = (fx, fy, cx, cy)``;
     ``aff = (a, b)``: brightness transfer of the old frame into the new one (the intensity check
     compares ``I_new`` with ``a * I_old + b``).
+
+    Two passes: the warp and the per-hypothesis checks run in parallel over rows (each source pixel
+    writes only its own entry of the work arrays); the collisions are then resolved serially in
+    raster order, so the result does not depend on the number of threads. ``work``: the
+    :class:`PropagationWork` arrays of the map's size (scratch, allocated once by the caller).
 
     ``new.valid`` must be all 0 on entry; the other arrays of ``new`` are only written where a
     hypothesis lands (``blacklist`` is reset to 0 there). Returns (kept, dropped_border,
@@ -562,18 +570,16 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
     sat = prm[P_SATURATION]
     sat_check = abs(aff[0] - 1.0) > prm[P_SAT_GAIN_TOL]
     h, w = idepth_s.shape
-    kept = 0
-    n_border = 0
-    n_int = 0
-    n_occ = 0
-    n_fused = 0
-    for y in range(h):
+    # pass 1: where each hypothesis lands (target >= 0: flat index; -1 border, -2 intensity, -3 none)
+    target, w_d, w_var, w_u, w_v = work
+    for y in prange(h):
         for x in range(w):
+            target[y, x] = -3
             if valid[y, x] == 0:
                 continue
+            target[y, x] = -1
             d = np.float64(idepth_s[y, x])
             if not (d > 0.0):
-                n_border += 1
                 continue
             px = np.float64(pos_x[y, x])
             py = np.float64(pos_y[y, x])
@@ -583,20 +589,18 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             qy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) / d + t[1]
             qz = (R[2, 0] * rx + R[2, 1] * ry + R[2, 2]) / d + t[2]
             if not (qz > 0.0):
-                n_border += 1
                 continue
             d_new = 1.0 / qz
             u = fx * qx * d_new + cx
             v = fy * qy * d_new + cy
             if not (u >= border and v >= border and u <= w - 1 - border and v <= h - 1 - border
                     and u < w - 1 and v < h - 1 and u >= 0.0 and v >= 0.0):
-                n_border += 1
                 continue
+            target[y, x] = -2
             ix = int(u + 0.5)
             iy = int(v + 0.5)
             g = np.float64(maxgrad_new[iy, ix])
             if g < min_grad:
-                n_int += 1
                 continue
             if px >= 0.0 and py >= 0.0 and px < w - 1 and py < h - 1:
                 src = _bilinear(img_old, px, py)
@@ -606,11 +610,33 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             r = dst - (aff[0] * src + aff[1])
             clipped = sat_check and (src >= sat or dst >= sat)    # under an exposure change: not comparable
             if not clipped and r * r / (diff_const2 + diff_grad_mult * g * g) > 1.0:
-                n_int += 1
                 continue
             ratio = d_new / d
             ratio *= ratio
-            new_var = ratio * ratio * idepth_var[y, x] + var_add
+            target[y, x] = iy * w + ix
+            w_d[y, x] = d_new
+            w_var[y, x] = ratio * ratio * idepth_var[y, x] + var_add
+            w_u[y, x] = u
+            w_v[y, x] = v
+    # pass 2: collisions, serially in raster order
+    kept = 0
+    n_border = 0
+    n_int = 0
+    n_occ = 0
+    n_fused = 0
+    for y in range(h):
+        for x in range(w):
+            tg = target[y, x]
+            if tg < 0:
+                if tg == -1:
+                    n_border += 1
+                elif tg == -2:
+                    n_int += 1
+                continue
+            iy = tg // w
+            ix = tg - iy * w
+            d_new = w_d[y, x]
+            new_var = w_var[y, x]
             if o_valid[iy, ix] != 0:
                 other = np.float64(o_idepth[iy, ix])
                 diff = other - d_new
@@ -623,8 +649,8 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
                 o_idepth[iy, ix] = d_new
                 o_var[iy, ix] = new_var
                 o_validity[iy, ix] = validity[y, x]
-                o_pos_x[iy, ix] = u
-                o_pos_y[iy, ix] = v
+                o_pos_x[iy, ix] = w_u[y, x]
+                o_pos_y[iy, ix] = w_v[y, x]
                 o_ref_id[iy, ix] = ref_id[y, x]
                 o_skip[iy, ix] = skip[y, x]
                 o_valid[iy, ix] = 1
@@ -802,6 +828,12 @@ def fill_kernel(st, maxgrad, prm, new_flag):
             new_flag[y, x] = 1
 
 
+def propagation_work(h: int, w: int) -> PropagationWork:
+    """Scratch arrays of :func:`propagate_kernel` for an HxW map."""
+    return PropagationWork(np.empty((h, w), np.int64), np.empty((h, w), np.float64), np.empty((h, w), np.float64),
+                           np.empty((h, w), np.float64), np.empty((h, w), np.float64))
+
+
 def new_state(h: int, w: int) -> MapState:
     """An empty :class:`MapState` (no hypothesis; positions on the pixel grid)."""
     yy, xx = np.mgrid[0:h, 0:w]
@@ -846,7 +878,7 @@ def warmup() -> None:
     status = np.zeros((h, w), np.int8)
     observe_kernel(img, gx, gy, mg, refs, st, cam, prm, 1, 0, 64, status)
     new = new_state(h, w)
-    propagate_kernel(st, img, img, mg, R, t, cam, prm, np.array([1.0, 0.0]), new)
+    propagate_kernel(st, img, img, mg, R, t, cam, prm, np.array([1.0, 0.0]), new, propagation_work(h, w))
     o_valid = np.zeros((h, w), np.uint8)
     regularize_kernel(st, prm, o_valid)
     fill_kernel(st, mg, prm, o_valid)

@@ -24,7 +24,7 @@ from ..camera import PinholeIntrinsics
 from ..errors import InputError
 from ..photometric import affine_transfer
 from . import _kernels as kernels
-from ._kernels import MapState, RefFrames, new_state
+from ._kernels import MapState, RefFrames, new_state, propagation_work
 from .config import MappingConfig
 
 
@@ -179,6 +179,7 @@ class Mapper:
         self._cam = np.array([intrinsics0.fx, intrinsics0.fy, intrinsics0.cx, intrinsics0.cy], np.float64)
         self.state: MapState = new_state(self.h, self.w)
         self._spare: MapState = new_state(self.h, self.w)
+        self._prop_work = propagation_work(self.h, self.w)
         self._grid_x = self.state.pos_x.copy()
         self._grid_y = self.state.pos_y.copy()
         self._cur: _Prepared | None = None
@@ -336,7 +337,7 @@ class Mapper:
         np.copyto(ns.blacklist, old.blacklist)   # the blacklist stays with the pixel location
         aff = np.array(affine_transfer(self._cur.frame.affine, new.frame.affine))
         res = kernels.propagate_kernel(old, self._cur.image, new.image, new.maxgrad, R, t, self._cam,
-                                       self._params, aff, ns)
+                                       self._params, aff, ns, self._prop_work)
         k = cfg.blacklist_recovery_frames
         if k > 0 and self._iteration % k == 0:
             np.add(ns.blacklist, 1, out=ns.blacklist, where=ns.blacklist < 0)
