@@ -112,15 +112,16 @@ def _bilinear(img, x, y):
             + (1.0 - dx) * dy * img[iy + 1, ix] + dx * dy * img[iy + 1, ix + 1])
 
 
-@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def gradients_kernel(img, gx, gy, maxgrad):
     """Half central differences (0 on the 1-pixel border) and the 3x3 max filter of |g|.
 
-    float32 throughout, branch-free rows (vectorised); the max filter is separable (rows, then columns)."""
+    float32 throughout, branch-free rows (vectorised); the max filter is separable (rows, then columns).
+    Serial: at 320x240 it takes about 0.05 ms, less than waking a second thread."""
     h, w = img.shape
     mag = np.zeros((h, w), np.float32)
     rowmax = np.zeros((h, w), np.float32)
-    for y in prange(h):
+    for y in range(h):
         if y == 0 or y == h - 1:
             for x in range(w):
                 gx[y, x] = 0.0
@@ -136,7 +137,7 @@ def gradients_kernel(img, gx, gy, maxgrad):
             gx[y, x] = a
             gy[y, x] = b
             mag[y, x] = math.sqrt(a * a + b * b)
-    for y in prange(h):
+    for y in range(h):
         if w == 1:
             rowmax[y, 0] = mag[y, 0]
             continue
@@ -144,7 +145,7 @@ def gradients_kernel(img, gx, gy, maxgrad):
         rowmax[y, w - 1] = max(mag[y, w - 2], mag[y, w - 1])
         for x in range(1, w - 1):
             rowmax[y, x] = max(max(mag[y, x - 1], mag[y, x]), mag[y, x + 1])
-    for y in prange(h):
+    for y in range(h):
         y0 = max(y - 1, 0)
         y1 = min(y + 1, h - 1)
         for x in range(w):
@@ -701,7 +702,7 @@ def regularize_kernel(st, prm, o_valid):
     D = np.full((hp, wp), np.nan, np.float32)
     V = np.zeros((hp, wp), np.float32)
     L = np.zeros((hp, wp), np.float32)
-    for y in prange(h):
+    for y in range(h):
         for x in range(w):
             if valid[y, x] != 0:
                 D[y + r, x + r] = idepth[y, x]
@@ -756,7 +757,7 @@ def regularize_kernel(st, prm, o_valid):
                 o_var_s[y, x] = 1.0 / si[x]
 
 
-@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def fill_kernel(st, maxgrad, prm, new_flag):
     """Create hypotheses in empty pixels of ``st`` (a :class:`MapState`) with gradient >= min_grad
     whose 5x5 validity sum exceeds ``P_FILL_VALIDITY_SUM`` (``P_UNBLACKLIST_SUM`` for pixels with
@@ -767,7 +768,7 @@ def fill_kernel(st, maxgrad, prm, new_flag):
     read sees the map before filling. The caller then sets ``valid |= new_flag``.
 
     The 5x5 sums (validity, idepth/var, 1/var) and the 5x5 minimum of ``ref_id`` over the valid
-    pixels are separable: row sums first (vectorised), then column sums at the candidate pixels.
+    pixels are separable: row sums first (vectorised), then column sums at the candidate pixels. Serial (about 0.3 ms at 320x240).
     """
     idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist, skip = st
     min_grad = prm[P_MIN_GRAD]
@@ -785,7 +786,7 @@ def fill_kernel(st, maxgrad, prm, new_flag):
     hs = np.zeros((h, w), np.float64)
     hi = np.zeros((h, w), np.float64)
     hr = np.full((h, w), big, np.int64)
-    for y in prange(h):
+    for y in range(h):
         pv = np.zeros(w, np.float64)
         ps = np.zeros(w, np.float64)
         pi = np.zeros(w, np.float64)
@@ -802,7 +803,7 @@ def fill_kernel(st, maxgrad, prm, new_flag):
             hs[y, x] = ps[x - 2] + ps[x - 1] + ps[x] + ps[x + 1] + ps[x + 2]
             hi[y, x] = pi[x - 2] + pi[x - 1] + pi[x] + pi[x + 1] + pi[x + 2]
             hr[y, x] = min(min(min(pr[x - 2], pr[x - 1]), min(pr[x], pr[x + 1])), pr[x + 2])
-    for y in prange(2, h - 2):
+    for y in range(2, h - 2):
         for x in range(2, w - 2):
             if valid[y, x] != 0 or maxgrad[y, x] < min_grad:
                 continue
