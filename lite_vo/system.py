@@ -133,7 +133,7 @@ class _Frame:
     timestamp: float
     image: np.ndarray                 # float32 at mapping resolution
     pyramid: list
-    depth_m: np.ndarray | None        # at mapping resolution, 0 = invalid
+    depth_native: np.ndarray | None   # as read (camera resolution, metres), rectified on first use
     T_world_cam: np.ndarray | None = None
     color: np.ndarray | None = None   # the input BGR image (native resolution) for colour sources
     residual: float = 0.0
@@ -141,6 +141,16 @@ class _Frame:
     sharpness: float = 1.0            # relative to the recent frames (motion blur: < 1)
     affine: tuple = (1.0, 0.0)        # brightness (A, B): I = A * J + B, chained by tracking
     noise_sigma: float = float("nan")  # smoothed image noise estimate (grey levels)
+    rectify_depth: Any = None          # native depth -> mapping resolution (the system's rectifier)
+    _depth_m: np.ndarray | None = None
+
+    @property
+    def depth_m(self) -> np.ndarray | None:
+        """The depth image at mapping resolution (0 = invalid), rectified on first use: most frames
+        never need it (only initialisation, RGB-D tracking and the sampled depth evaluation do)."""
+        if self._depth_m is None and self.depth_native is not None:
+            self._depth_m = self.rectify_depth(self.depth_native)
+        return self._depth_m
 
 
 class VisualOdometry:
@@ -205,6 +215,7 @@ class VisualOdometry:
         self._mapper = self._new_mapper()
         self._verifier = None  # tracking thread only: InitVerifier after a random initialisation
         # one row (dict) per mapped frame with a depth image, stored as numbers (long runs stay small)
+        self._depth_eval_count = 0       # mapped frames offered to the depth evaluation
         self.depth_accuracy_series = RowRecord(DEPTH_ACCURACY_FIELDS, ints=("frame", "compared"))
         # shared
         self._ref_lock = threading.Lock()
@@ -345,11 +356,11 @@ class VisualOdometry:
         img = self._rectifier(image)
         sharp = self._monitor.sharpness(img)
         pyr = image_pyramid(img, self.config.resolution.pyramid_levels)
-        depth_m = self._rectifier.depth(depth) if depth is not None else None
         self.timers.add("preprocess", (time.perf_counter() - t) * 1e3)
         if self._t0 is None:
             self._t0 = float(timestamp)
-        frame = _Frame(self._index, float(timestamp), img, pyr, depth_m, sharpness=sharp, color=color)
+        frame = _Frame(self._index, float(timestamp), img, pyr, depth, sharpness=sharp, color=color,
+                       rectify_depth=self._rectifier.depth)
         self._index += 1
         return frame
 
@@ -704,7 +715,11 @@ class VisualOdometry:
         self._record_depth_accuracy(frame, idepth, valid)
 
     def _record_depth_accuracy(self, frame: _Frame, idepth=None, valid=None) -> None:
-        if frame.depth_m is None:
+        every = self.config.system.depth_eval_every
+        if frame.depth_native is None or every <= 0:
+            return
+        self._depth_eval_count += 1
+        if (self._depth_eval_count - 1) % every:
             return
         if idepth is None:
             idepth, _, valid = self._mapper.current()

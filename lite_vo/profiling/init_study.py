@@ -55,7 +55,8 @@ def plan_init_study(sequence: str, seq_name: str, n: int, length_s: float, out_d
     """``n`` random-init sub-sequences of ``length_s`` seconds from evenly spaced start frames.
 
     Sub-sequence i starts at frame ``s_i`` (evenly spread over the frames that leave
-    ``length_s`` seconds after them) and uses seed ``i + 1``.
+    ``length_s`` seconds after them) and uses seed ``i + 1``. Every mapped frame is compared with
+    the depth images (``system.depth_eval_every=1``): the criterion reads the map at a given time.
     """
     if n < 1:
         raise InputError("--init-study: need at least 1 sub-sequence")
@@ -73,7 +74,7 @@ def plan_init_study(sequence: str, seq_name: str, n: int, length_s: float, out_d
         specs.append(RunSpec(sequence=sequence, seq_name=seq_name, profile=profile, rep=i,
                              out_dir=out_dir / seq_name / f"{i:03d}", init="random",
                              max_frames=max(m, 2), start_frame=s, seed=i + 1, pin_core=pin_core,
-                             kind="init", overrides=tuple(overrides), calib=calib))
+                             kind="init", overrides=("system.depth_eval_every=1", *overrides), calib=calib))
     return specs
 
 
