@@ -139,6 +139,7 @@ class _Frame:
     residual: float = 0.0
     mapper: Any = None                # the mapper whose map this frame was tracked against
     sharpness: float = 1.0            # relative to the recent frames (motion blur: < 1)
+    clipped: float = 0.0              # share of the pixels at or above mapping.saturation
     affine: tuple = (1.0, 0.0)        # brightness (A, B): I = A * J + B, chained by tracking
     noise_sigma: float = float("nan")  # smoothed image noise estimate (grey levels)
     rectify_depth: Any = None          # native depth -> mapping resolution (the system's rectifier)
@@ -359,8 +360,9 @@ class VisualOdometry:
         self.timers.add("preprocess", (time.perf_counter() - t) * 1e3)
         if self._t0 is None:
             self._t0 = float(timestamp)
+        clipped = float(np.count_nonzero(img >= self.config.mapping.saturation)) / img.size
         frame = _Frame(self._index, float(timestamp), img, pyr, depth, sharpness=sharp, color=color,
-                       rectify_depth=self._rectifier.depth)
+                       rectify_depth=self._rectifier.depth, clipped=clipped)
         self._index += 1
         return frame
 
@@ -467,7 +469,8 @@ class VisualOdometry:
             self.timers.add(f"track_lvl{lvl}", ms)
         quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio), "hypothesis": tr.hypothesis,
                    "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used),
-                   "sharpness": float(frame.sharpness), "affine_a": tr.affine[0], "affine_b": tr.affine[1]}
+                   "sharpness": float(frame.sharpness), "affine_a": tr.affine[0], "affine_b": tr.affine[1],
+                   "lost_reason": tr.lost_reason, "clipped": frame.clipped}
         lost = bool(tr.lost) or not np.all(np.isfinite(tr.T_ref_new))
         if not lost:
             frame.affine = self._monitor.accept(ref.affine, tr.affine, tr.residual_sigma, tr.noise_sigma)
@@ -475,6 +478,8 @@ class VisualOdometry:
             self._recent_affine[frame.index] = frame.affine
             self._recent_affine.pop(frame.index - 1000, None)
         quality["noise_sigma"] = float(self._monitor.noise_sigma)
+        if not lost:   # the frame's brightness in the chain: I = A * J + B (J: the first frame's)
+            quality["brightness_a"], quality["brightness_b"] = float(frame.affine[0]), float(frame.affine[1])
         T_world_new = None if lost else project_to_se3(ref.T_world_ref @ tr.T_ref_new)
         if self._verifier is not None:
             decision = self._verifier.add(frame.index, frame.timestamp, frame.image, T_world_new)

@@ -28,12 +28,15 @@ from pathlib import Path
 import numpy as np
 
 
-def exposure_curve(times: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """(gain, offset) per timestamp: sines of periods in [1.5, 2] s with random phases."""
+def exposure_curve(times: np.ndarray, rng: np.random.Generator, gain_range=(0.55, 1.45),
+                   offset_amp: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
+    """(gain, offset) per timestamp: sines of periods in [1.5, 2] s with random phases, the gain
+    within ``gain_range``, the offset within +-``offset_amp``."""
     p_gain, p_off = rng.uniform(1.5, 2.0, 2)
     ph_gain, ph_off = rng.uniform(0, 2 * np.pi, 2)
-    gain = 1.0 + 0.45 * np.sin(2 * np.pi * times / p_gain + ph_gain)
-    offset = 10.0 * np.sin(2 * np.pi * times / p_off + ph_off)
+    lo, hi = gain_range
+    gain = 0.5 * (lo + hi) + 0.5 * (hi - lo) * np.sin(2 * np.pi * times / p_gain + ph_gain)
+    offset = offset_amp * np.sin(2 * np.pi * times / p_off + ph_off)
     return gain, offset
 
 
@@ -65,6 +68,21 @@ def augment_image(img: np.ndarray, vignette: np.ndarray | None, blur_px: int, ga
     return np.clip(np.rint(x), 0, 255).astype(np.uint8)
 
 
+def read_grey(path: Path) -> np.ndarray:
+    """The 8-bit grey image lite_vo itself would see (decoded in colour, then ``COLOR_BGR2GRAY``:
+    OpenCV's direct grey decoding of a JPEG differs by up to a few grey levels, and the VO reacts
+    to such differences)."""
+    import cv2
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise SystemExit(f"augment: {path}: cannot read the image")
+    if img.dtype == np.uint16:
+        img = (img.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    return img
+
+
 def _read_rgb_list(src: Path) -> list[tuple[str, float, str]]:
     f = src / "rgb.txt"
     if not f.exists():
@@ -88,6 +106,10 @@ def main(argv=None) -> int:
     ap.add_argument("src")
     ap.add_argument("dst")
     ap.add_argument("--exposure", action="store_true", help="auto-exposure (gain 0.55..1.45, offset +-10)")
+    ap.add_argument("--gain-range", nargs=2, type=float, default=(0.55, 1.45), metavar=("LO", "HI"),
+                    help="--exposure: range of the gain (default 0.55 1.45)")
+    ap.add_argument("--offset", type=float, default=10.0, metavar="B",
+                    help="--exposure: amplitude of the offset in grey levels (default 10)")
     ap.add_argument("--vignette", action="store_true", help="vignetting, 50%% at the corners")
     ap.add_argument("--blur", action="store_true", help="horizontal motion blur of 3..7 px")
     ap.add_argument("--noise", nargs="?", type=float, const=3.0, default=0.0, metavar="SIGMA",
@@ -105,20 +127,20 @@ def main(argv=None) -> int:
         if not args.force:
             raise SystemExit(f"augment: {dst} exists (use --force to replace it)")
         shutil.rmtree(dst)
+    if not 0 < args.gain_range[0] <= args.gain_range[1]:
+        raise SystemExit(f"augment: --gain-range {args.gain_range[0]:g} {args.gain_range[1]:g}: need 0 < LO <= HI")
     if args.jpeg and not 1 <= args.jpeg <= 100:
         raise SystemExit(f"augment: --jpeg {args.jpeg}: quality must be in 1..100")
     shutil.copytree(src, dst, ignore=shutil.ignore_patterns("rgb", "rgb.txt"))
     rng = np.random.default_rng(args.seed)
     times = np.array([t for _, t, _ in rows]) - rows[0][1]
-    gain, offset = exposure_curve(times, rng) if args.exposure else (np.ones(len(rows)), np.zeros(len(rows)))
+    gain, offset = exposure_curve(times, rng, tuple(args.gain_range), args.offset) if args.exposure else (np.ones(len(rows)), np.zeros(len(rows)))
     blur = rng.integers(3, 8, len(rows)) if args.blur else np.ones(len(rows), np.int64)
     vig = None
     params = []
     out_lines = ["# timestamp filename (augmented: " + " ".join(a for a in sys.argv[1:] if a.startswith("--")) + ")"]
     for k, (ts_text, _, name) in enumerate(rows):
-        img = cv2.imread(str(src / name), cv2.IMREAD_GRAYSCALE)
-        if img is None:
-            raise SystemExit(f"augment: {src / name}: cannot read the image")
+        img = read_grey(src / name)
         if args.vignette and (vig is None or vig.shape != img.shape):
             vig = vignette_map(*img.shape)
         out = augment_image(img, vig, int(blur[k]), float(gain[k]), float(offset[k]), args.noise, rng)
@@ -137,7 +159,8 @@ def main(argv=None) -> int:
                        "blur_px": int(blur[k])})
     (dst / "rgb.txt").write_text("\n".join(out_lines) + "\n")
     (dst / "augment.json").write_text(json.dumps({
-        "source": str(src), "seed": args.seed, "exposure": args.exposure, "vignette": args.vignette,
+        "source": str(src), "seed": args.seed, "exposure": args.exposure,
+        "gain_range": list(args.gain_range), "offset_amplitude": args.offset, "vignette": args.vignette,
         "blur": args.blur, "noise_sigma": args.noise, "jpeg_quality": args.jpeg, "frames": params}, indent=1))
     print(f"augment: {len(rows)} frames -> {dst}")
     return 0

@@ -1,0 +1,104 @@
+"""Real-camera tooling: tools/augment.py (what it writes, and the grey the VO would see) and the
+brightness/clipping numbers every tracked frame reports."""
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+import naive_tracking
+from lite_vo import load_profile
+from lite_vo.camera import PinholeIntrinsics
+from lite_vo.geometry import exp_se3
+from lite_vo.io.sequences import _imread
+from lite_vo.system import VisualOdometry
+
+ROOT = Path(__file__).resolve().parents[1]
+INTR = PinholeIntrinsics(262.5, 262.5, 159.5, 119.5, 320, 240)
+
+
+def _augment_module():
+    spec = importlib.util.spec_from_file_location("augment", ROOT / "tools" / "augment.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _colour_sequence(folder: Path, n: int = 4) -> list[np.ndarray]:
+    """A tiny TUM-layout folder of colour JPEGs (seeded); returns the BGR images as decoded."""
+    rng = np.random.default_rng(4)
+    (folder / "rgb").mkdir(parents=True)
+    lines, decoded = [], []
+    for k in range(n):
+        img = cv2.GaussianBlur(rng.uniform(0, 255, (60, 80, 3)), (0, 0), 1.5).astype(np.uint8)
+        name = f"rgb/{k:03d}.jpg"
+        cv2.imwrite(str(folder / name), img, [cv2.IMWRITE_JPEG_QUALITY, 80])
+        decoded.append(cv2.imread(str(folder / name), cv2.IMREAD_COLOR))
+        lines.append(f"{k / 30:.6f} {name}")
+    (folder / "rgb.txt").write_text("\n".join(lines) + "\n")
+    (folder / "groundtruth.txt").write_text("# copied unchanged\n")
+    return decoded
+
+
+def test_augment_reads_the_grey_the_vo_reads(tmp_path):
+    _colour_sequence(tmp_path / "src", 1)
+    aug = _augment_module()
+    path = tmp_path / "src" / "rgb" / "000.jpg"
+    grey = aug.read_grey(path)
+    vo_grey, colour = _imread(path)
+    assert colour is not None                                # a colour source, converted by the VO
+    assert grey.dtype == np.uint8 and np.array_equal(grey, vo_grey)
+
+
+def test_augment_exposure_range_and_truth_file(tmp_path):
+    decoded = _colour_sequence(tmp_path / "src")
+    aug = _augment_module()
+    assert aug.main([str(tmp_path / "src"), str(tmp_path / "dst"), "--exposure", "--gain-range", "0.8", "0.9",
+                     "--offset", "4", "--seed", "3"]) == 0
+    meta = json.loads((tmp_path / "dst" / "augment.json").read_text())
+    assert meta["gain_range"] == [0.8, 0.9] and meta["offset_amplitude"] == 4.0
+    gains = np.array([f["gain"] for f in meta["frames"]])
+    offsets = np.array([f["offset"] for f in meta["frames"]])
+    assert np.all((gains >= 0.8) & (gains <= 0.9)) and np.all(np.abs(offsets) <= 4.0)
+    assert np.ptp(gains) > 0                                   # the exposure changes over time
+    rows = [l.split() for l in (tmp_path / "dst" / "rgb.txt").read_text().splitlines() if not l.startswith("#")]
+    for k, (_, name) in enumerate(rows):
+        out = cv2.imread(str(tmp_path / "dst" / name), cv2.IMREAD_UNCHANGED)
+        grey = cv2.cvtColor(decoded[k], cv2.COLOR_BGR2GRAY).astype(np.float64)
+        expect = np.clip(np.rint(gains[k] * grey + offsets[k]), 0, 255)
+        assert out.ndim == 2 and np.array_equal(out, expect.astype(np.uint8))   # the true gain/offset, written out
+    assert (tmp_path / "dst" / "groundtruth.txt").exists()
+
+
+def test_augment_rejects_a_bad_gain_range(tmp_path):
+    _colour_sequence(tmp_path / "src", 1)
+    with pytest.raises(SystemExit, match="gain-range"):
+        _augment_module().main([str(tmp_path / "src"), str(tmp_path / "dst"), "--exposure", "--gain-range", "1.2", "0.9"])
+
+
+def test_frames_report_their_brightness_and_clipped_share():
+    """The brightness chain (quality brightness_a/b, relative to the first frame) follows a known
+    exposure change, and quality['clipped'] is the share of clipped pixels of the frame."""
+    room = naive_tracking.Room(seed=1, cell=0.05, depth=1.3, half_width=0.9, floor=0.5, ceiling=-0.6)
+    gains = [1.0, 1.05, 1.12, 1.2, 1.28]
+    offsets = [0.0, 2.0, 4.0, 6.0, 8.0]
+    cfg = load_profile("phone", ["tracking.affine_brightness=true", "system.init=depth"])
+    results, images = [], []
+    with VisualOdometry(INTR, cfg) as vo:
+        for k, (g, o) in enumerate(zip(gains, offsets)):
+            T = exp_se3(np.array([0.004 * k, 0.002 * k, 0.0, 0.0, 0.003 * k, 0.0]))
+            img, z = room.render(T, INTR, supersample=2)
+            img = np.clip(np.rint(g * img + o), 0, 255).astype(np.uint8)
+            images.append(img)
+            results.append(vo.process(img, k / 30.0, depth=z if k == 0 else None))
+    for k, r in enumerate(results[1:], 1):
+        assert not r.lost
+        assert r.quality["brightness_a"] == pytest.approx(gains[k] / gains[0], rel=0.03), r.quality
+        assert r.quality["brightness_b"] == pytest.approx(offsets[k], abs=3.0), r.quality
+        assert r.quality["clipped"] == pytest.approx(np.mean(images[k] >= cfg.mapping.saturation), abs=1e-6)
+        assert r.quality["lost_reason"] == ""
+    assert results[-1].quality["clipped"] > results[1].quality["clipped"]     # brighter: more clipped pixels
