@@ -64,15 +64,20 @@ def cpu_seconds(pid: int) -> float | None:
         return None
 
 
-def one_run(seq: Path, core: int, out: Path, init: str, mode: str, max_frames: int | None) -> dict:
-    """One pinned run of the whole program; the numbers above."""
+def one_run(seq: Path, core: int | None, out: Path, init: str, mode: str, max_frames: int | None,
+            profile: str = "board", extra: tuple = ()) -> dict:
+    """One run of the whole program; the numbers above. ``core``: pin to this core with one numba
+    thread (None: not pinned, numba's default threads). ``extra``: more ``lite-vo run`` arguments."""
     if out.exists():
         shutil.rmtree(out)
-    cmd = ["taskset", "-c", str(core), *lite_vo_command(), "run", str(seq), "--profile", "board",
-           "--init", init, "--mode", mode, "--out", str(out), "--force", "--quiet"]
+    pin = ["taskset", "-c", str(core)] if core is not None else []
+    cmd = [*pin, *lite_vo_command(), "run", str(seq), "--profile", profile,
+           "--init", init, "--mode", mode, "--out", str(out), "--force", "--quiet", *extra]
     if max_frames:
         cmd += ["--max-frames", str(max_frames)]
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    env = dict(os.environ)
+    if core is not None:
+        env.update(NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
     traj = out / "trajectory.txt"
     log = tempfile.TemporaryFile()
     t0 = time.perf_counter()
@@ -112,6 +117,7 @@ def one_run(seq: Path, core: int, out: Path, init: str, mode: str, max_frames: i
         "tracked": frames["tracked"], "status": run["status"],
         "tracking_median_ms": timing["tracking"]["median"], "mapping_median_ms": timing["mapping"]["median"],
         "mapping_count": timing["mapping"]["count"],
+        "stages": {k: v["median"] for k, v in timing.get("stages", {}).items()},
     }
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import signal
 import sys
 from importlib.metadata import entry_points
@@ -93,6 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     except Interrupted:
         print(f"lite-vo {args.command}: terminated (SIGTERM); the outputs so far were written", file=sys.stderr)
         return 143
+    except BrokenPipeError:
+        # the reader of our output went away (``lite-vo run ... | head``): the run itself finished;
+        # point stdout at devnull so the interpreter's final flush does not raise again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     finally:
         signal.signal(signal.SIGTERM, previous)
 

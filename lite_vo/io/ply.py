@@ -12,18 +12,23 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from .outputs import write_file_atomic
 
 _PLY_TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8", "uchar": "u1",
               "uint8": "u1", "int": "<i4", "int32": "<i4", "uint": "<u4", "short": "<i2", "ushort": "<u2",
               "char": "i1"}
 
 
+_CHUNK = 1 << 16     # points per block of the binary body
+
+
 def write_ply(path: str | os.PathLike, points_xyz, idepth_var=None, colors=None, binary: bool = True) -> None:
     """Write points (N, 3) with optional ``idepth_var`` (N,) and ``colors`` (N,) grey or (N, 3) RGB
-    (0..255) to a PLY file. Non-finite points are an error (filter them first)."""
+    (0..255) to a PLY file. Non-finite points are an error (filter them first).
+
+    The file is written beside ``path`` and renamed over it at the end (never half-written); the
+    binary body is written in blocks of 65536 points, so a large cloud needs no second copy."""
     path = Path(path)
-    pts = np.asarray(points_xyz, dtype=np.float64)
+    pts = np.asarray(points_xyz)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points_xyz must be (N, 3), got {pts.shape}")
     n = len(pts)
@@ -32,36 +37,43 @@ def write_ply(path: str | os.PathLike, points_xyz, idepth_var=None, colors=None,
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     var = None
     if idepth_var is not None:
-        var = np.asarray(idepth_var, dtype=np.float64).reshape(-1)
+        var = np.asarray(idepth_var).reshape(-1)
         if len(var) != n:
             raise ValueError(f"idepth_var has {len(var)} values for {n} points")
         fields.append(("idepth_var", "<f4"))
-    rgb = None
+    c = None
     if colors is not None:
-        c = np.asarray(colors, dtype=np.float64)
+        c = np.asarray(colors)
         if c.ndim == 1:
-            c = np.repeat(c[:, None], 3, axis=1)
-        if c.shape != (n, 3):
+            c = c[:, None]
+        if c.shape not in ((n, 3), (n, 1)):
             raise ValueError(f"colors must be (N,) or (N, 3), got {np.shape(colors)}")
-        rgb = np.clip(np.rint(np.nan_to_num(c)), 0, 255).astype(np.uint8)
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    arr = np.zeros(n, dtype=fields)
-    arr["x"], arr["y"], arr["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
-    if var is not None:
-        arr["idepth_var"] = var
-    if rgb is not None:
-        arr["red"], arr["green"], arr["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
     names = {"<f4": "float", "u1": "uchar"}
     header = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0",
               "comment lite_vo semi-dense map", f"element vertex {n}"]
     header += [f"property {names[t]} {name}" for name, t in fields]
     header.append("end_header")
-    if binary:
-        body = arr.tobytes()
-    else:
-        body = "".join(" ".join(f"{v:.7g}" if isinstance(v, np.floating) else str(int(v)) for v in row) + "\n"
-                       for row in arr).encode("ascii")
-    write_file_atomic(path, ("\n".join(header) + "\n").encode("ascii") + body)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        for a in range(0, n, _CHUNK):
+            b = min(a + _CHUNK, n)
+            arr = np.zeros(b - a, dtype=fields)
+            arr["x"], arr["y"], arr["z"] = pts[a:b, 0], pts[a:b, 1], pts[a:b, 2]
+            if var is not None:
+                arr["idepth_var"] = var[a:b]
+            if c is not None:
+                rgb = np.clip(np.rint(np.nan_to_num(c[a:b].astype(np.float64))), 0, 255).astype(np.uint8)
+                if rgb.shape[1] == 1:
+                    rgb = np.repeat(rgb, 3, axis=1)
+                arr["red"], arr["green"], arr["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+            if binary:
+                arr.tofile(f)
+            else:
+                f.write("".join(" ".join(f"{v:.7g}" if isinstance(v, np.floating) else str(int(v)) for v in row) + "\n"
+                                for row in arr).encode("ascii"))
+    os.replace(tmp, path)
 
 
 def read_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
