@@ -219,11 +219,11 @@ class KeyframeStore:
 
 @dataclass
 class PointCloud:
-    points: np.ndarray             # (N, 3) world frame
+    points: np.ndarray             # (N, 3) float32, world frame
     colors: np.ndarray             # (N, 3) uint8 RGB
-    idepth_var: np.ndarray         # (N,)
-    keyframe: np.ndarray           # (N,) index of the keyframe each point comes from
-    pixel: np.ndarray              # (N, 2) (u, v) pixel in that keyframe (mapping resolution)
+    idepth_var: np.ndarray         # (N,) float32
+    keyframe: np.ndarray           # (N,) int32 index of the keyframe each point comes from
+    pixel: np.ndarray              # (N, 2) int16 (u, v) pixel in that keyframe (mapping resolution)
 
 
 def _neighbours(kfs: list[Keyframe], i: int, n: int, depth: float) -> list[int]:
@@ -294,15 +294,17 @@ def scene_cloud(keyframes, max_rel_std: float = 0.1, rel_tol: float = 0.03, neig
             col = kf.color[v, u][:, ::-1]                   # BGR -> RGB
         else:
             col = np.repeat(kf.image[v, u][:, None], 3, axis=1)
-        pts_all.append(p_world)
-        col_all.append(col)
-        var_all.append(var)
-        kf_all.append(np.full(len(u), kf.index))
-        px_all.append(np.stack([u, v], axis=1))
+        # compact types (a run's cloud has millions of points): float32 positions and variances,
+        # int32 keyframe indices, int16 pixels (mapping resolution)
+        pts_all.append(p_world.astype(np.float32))
+        col_all.append(np.asarray(col, np.uint8))
+        var_all.append(var.astype(np.float32))
+        kf_all.append(np.full(len(u), kf.index, np.int32))
+        px_all.append(np.stack([u, v], axis=1).astype(np.int16))
     if not pts_all:
-        return PointCloud(np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0), np.zeros(0, np.int64),
-                          np.zeros((0, 2), np.int64))
-    cloud = PointCloud(np.concatenate(pts_all), np.concatenate(col_all).astype(np.uint8), np.concatenate(var_all),
+        return PointCloud(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), np.zeros(0, np.float32),
+                          np.zeros(0, np.int32), np.zeros((0, 2), np.int16))
+    cloud = PointCloud(np.concatenate(pts_all), np.concatenate(col_all), np.concatenate(var_all),
                        np.concatenate(kf_all), np.concatenate(px_all))
     return voxel_downsample(cloud, voxel) if voxel > 0 else cloud
 
@@ -311,7 +313,7 @@ def voxel_downsample(cloud: PointCloud, voxel: float) -> PointCloud:
     """One point per ``voxel``-sized cell: the mean position and colour, the smallest variance."""
     if len(cloud.points) == 0:
         return cloud
-    key = np.floor(cloud.points / voxel).astype(np.int64)
+    key = np.floor(cloud.points.astype(np.float64) / voxel).astype(np.int64)
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
     m = len(counts)
@@ -323,5 +325,5 @@ def voxel_downsample(cloud: PointCloud, voxel: float) -> PointCloud:
     np.minimum.at(var, inv, cloud.idepth_var)
     first = np.zeros(m, np.int64)
     first[inv[::-1]] = np.arange(len(inv))[::-1]
-    return PointCloud(pts / counts[:, None], np.rint(col / counts[:, None]).astype(np.uint8), var,
-                      cloud.keyframe[first], cloud.pixel[first])
+    return PointCloud((pts / counts[:, None]).astype(np.float32), np.rint(col / counts[:, None]).astype(np.uint8),
+                      var.astype(np.float32), cloud.keyframe[first], cloud.pixel[first])
