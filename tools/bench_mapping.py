@@ -115,6 +115,7 @@ def main(argv=None) -> int:
     t_run = time.perf_counter()
     for _ in range(args.repeat):
         m = Mapper(cfg, K, seed=0)
+        m.measure_cpu = True
         idx, ts, img, _, T = frames[0]
         m.initialize_random(MapFrame(idx, ts, img, T))
         for k, (idx, ts, img, _, T) in enumerate(frames[1:]):

@@ -52,7 +52,7 @@ class MappingStats:
     """What one :meth:`Mapper.update` did. Times in ms; counts in pixels."""
     frame_id: int = -1
     stage_ms: dict = field(default_factory=dict)          # wall-clock ms per stage
-    stage_cpu_ms: dict = field(default_factory=dict)      # CPU time of the calling thread per stage
+    stage_cpu_ms: dict = field(default_factory=dict)      # CPU time of the calling thread per stage (Mapper.measure_cpu)
     propagated: int = 0         # hypotheses that survived propagation (after collisions)
     dropped_border: int = 0
     dropped_intensity: int = 0
@@ -159,6 +159,10 @@ class _Prepared:
     maxgrad: np.ndarray
 
 
+def _no_clock() -> float:
+    return 0.0
+
+
 class Mapper:
     """Semi-dense inverse-depth filter for the newest tracked frame (no keyframes).
 
@@ -189,6 +193,7 @@ class Mapper:
         self._last_costs: dict | None = None
         self._per_search_ms: float | None = None
         self.last_stats = MappingStats()
+        self.measure_cpu = False    # also record each stage's CPU time (benchmarks; costs a clock read per stage)
 
     # ------------------------------------------------------------------ helpers
     def _check_frame(self, frame: MapFrame, gradients: bool = True) -> _Prepared:
@@ -279,7 +284,10 @@ class Mapper:
             raise InputError("Mapper.update: the map is not initialised (call initialize_random "
                              "or initialize_from_depth first)")
         stats = MappingStats(frame_id=int(frame.frame_id))
-        clock, cpu = time.perf_counter, time.thread_time
+        # the thread's CPU clock only when asked: reading it costs up to milliseconds per call on
+        # some (virtualised) machines while parallel kernels run, five times per iteration
+        clock = time.perf_counter
+        cpu = time.thread_time if self.measure_cpu else _no_clock
         t0, c0 = clock(), cpu()
         if frame.frame_id != self._cur.frame.frame_id:
             prep = self._check_frame(frame)
@@ -295,8 +303,9 @@ class Mapper:
         t4, c4 = clock(), cpu()
         stats.stage_ms = {"propagate": 1e3 * (t1 - t0), "observe": 1e3 * (t2 - t1),
                           "regularize": 1e3 * (t3 - t2), "fill": 1e3 * (t4 - t3)}
-        stats.stage_cpu_ms = {"propagate": 1e3 * (c1 - c0), "observe": 1e3 * (c2 - c1),
-                              "regularize": 1e3 * (c3 - c2), "fill": 1e3 * (c4 - c3)}
+        if self.measure_cpu:
+            stats.stage_cpu_ms = {"propagate": 1e3 * (c1 - c0), "observe": 1e3 * (c2 - c1),
+                                  "regularize": 1e3 * (c3 - c2), "fill": 1e3 * (c4 - c3)}
         stats.valid_count = int(np.count_nonzero(self.state.valid))
         stats.references = len(self._buffer)
         self._last_costs = {"observe_ms": stats.stage_ms["observe"],
