@@ -252,7 +252,10 @@ class Session:
         status, error, exc = None, None, None
         t_wall = time.perf_counter()
         try:
-            for fr in prefetch(seq, self.start_frame, self.max_frames):
+            # depth images are decoded when a frame needs one (initialisation, the sampled depth
+            # evaluation), except for RGB-D tracking, which needs every one
+            defer = self.depth_source != "images"
+            for fr in prefetch(seq, self.start_frame, self.max_frames, defer_depth=defer):
                 read += 1
                 if getattr(fr, "error", None) or fr.image is None:
                     counts["skipped"] += 1
@@ -273,7 +276,8 @@ class Session:
                     if T_given is None:
                         vo.note_dropped()
                         continue
-                res = vo.process(fr.image, fr.timestamp, depth=fr.depth, T_world_cam=T_given,
+                depth = fr.depth if getattr(fr, "depth_reader", None) is None else fr.depth_reader
+                res = vo.process(fr.image, fr.timestamp, depth=depth, T_world_cam=T_given,
                                  color=getattr(fr, "color", None))   # colour for the keyframes' cloud
                 last_index = fr.index
                 if res.event:
@@ -408,8 +412,12 @@ def trim_malloc() -> bool:
     return bool(libc.malloc_trim(0)) if libc is not None else False
 
 
-def prefetch(seq, start_frame: int, max_frames: int | None, depth: int = 4, trim_every: int | None = None):
+def prefetch(seq, start_frame: int, max_frames: int | None, depth: int = 4, trim_every: int | None = None,
+             defer_depth: bool = False):
     """Frames ``start_frame ..`` of ``seq`` decoded ahead in a reader thread (a camera driver's job).
+
+    ``defer_depth``: sequences that can (``seq.frames(start, defer_depth=True)``) leave the depth images
+    undecoded (``Frame.depth_reader`` reads one on demand).
 
     Order is unchanged, so sync runs stay deterministic; an exception in the reader is re-raised
     in the caller. Frames are allocated in the reader thread and freed in the caller's, which
@@ -423,7 +431,9 @@ def prefetch(seq, start_frame: int, max_frames: int | None, depth: int = 4, trim
 
     def reader():
         try:
-            if start_frame > 0 and hasattr(seq, "frame"):  # random access: skip without decoding
+            if hasattr(seq, "frames"):
+                source = seq.frames(start_frame, defer_depth=defer_depth)
+            elif start_frame > 0 and hasattr(seq, "frame"):  # random access: skip without decoding
                 source = (seq.frame(i) for i in range(start_frame, len(seq)))
             else:
                 source = itertools.islice(seq, start_frame, None)

@@ -133,7 +133,7 @@ class _Frame:
     timestamp: float
     image: np.ndarray                 # float32 at mapping resolution
     pyramid: list
-    depth_native: np.ndarray | None   # as read (camera resolution, metres), rectified on first use
+    depth_native: Any                 # as read (camera resolution, metres) or a reader of it; rectified on first use
     T_world_cam: np.ndarray | None = None
     color: np.ndarray | None = None   # the input BGR image (native resolution) for colour sources
     residual: float = 0.0
@@ -150,7 +150,8 @@ class _Frame:
         """The depth image at mapping resolution (0 = invalid), rectified on first use: most frames
         never need it (only initialisation, RGB-D tracking and the sampled depth evaluation do)."""
         if self._depth_m is None and self.depth_native is not None:
-            self._depth_m = self.rectify_depth(self.depth_native)
+            d = self.depth_native() if callable(self.depth_native) else self.depth_native
+            self._depth_m = self.rectify_depth(d)
         return self._depth_m
 
 
@@ -247,8 +248,8 @@ class VisualOdometry:
 
         ``image``: grey, or BGR (then converted here); ``color``: the BGR image of a grey ``image``
         when the caller has both (keyframes keep colour for the point cloud). ``depth`` (metres,
-        0 = invalid, camera resolution) is used for depth initialisation and in
-        ``depth_source="images"``; ``T_world_cam`` is required with ``pose_source="given"``.
+        0 = invalid, camera resolution; or a function returning it, called only if the frame needs
+        it) is used for depth initialisation, in ``depth_source="images"`` and for the depth evaluation; ``T_world_cam`` is required with ``pose_source="given"``.
         """
         self._check_input(image, timestamp, T_world_cam)
         t_start = time.perf_counter()
@@ -726,16 +727,21 @@ class VisualOdometry:
         self._depth_eval_count += 1
         if (self._depth_eval_count - 1) % every:
             return
+        try:
+            gt = frame.depth_m
+        except InputError as err:     # a deferred depth image that cannot be read: evaluation only
+            log.warning("depth evaluation skips frame %d: %s", frame.index, err)
+            return
         if idepth is None:
             idepth, _, valid = self._mapper.current()
         scale = 1.0
         if not (self.metric or self.pose_source == "given"):
             # monocular map: arbitrary scale, align it per frame (median ratio) before comparing
-            both = valid & (frame.depth_m > 0) & (idepth > 0)
+            both = valid & (gt > 0) & (idepth > 0)
             if both.any():
-                scale = float(np.median(frame.depth_m[both] * idepth[both]))
+                scale = float(np.median(gt[both] * idepth[both]))
                 idepth = idepth / scale
-        acc = depth_accuracy(idepth, valid, frame.depth_m)
+        acc = depth_accuracy(idepth, valid, gt)
         acc = {"frame": frame.index, "t": frame.timestamp - self._t0, "scale": scale, **acc}
         self.depth_accuracy_series.append(acc)
 

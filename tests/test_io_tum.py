@@ -291,3 +291,42 @@ def test_bad_calib_txt(tmp_path, text, expect):
     (folder / "calib.txt").write_text(text)
     msg = _err(folder)
     assert "calib.txt" in msg and expect in msg
+
+
+def test_deferred_depth_reads_the_same_image_on_demand(tmp_path):
+    folder = write_tum_folder(tmp_path, n=3, depth_scale=1000.0, depth_value_m=2.0)
+    seq = open_sequence(folder)
+    eager = seq.frame(1)
+    lazy = seq.frame(1, defer_depth=True)
+    assert lazy.depth is None and callable(lazy.depth_reader) and eager.depth_reader is None
+    np.testing.assert_array_equal(lazy.depth_reader(), eager.depth)
+    assert [f.index for f in seq.frames(1, defer_depth=True)] == [1, 2]
+    p = sorted((folder / "depth").iterdir())[2]
+    cv2.imwrite(str(p), textured_image(64, 48, colour=True))   # broken: found out only when read
+    f = seq.frame(2, defer_depth=True)
+    assert f.ok
+    with pytest.raises(InputError, match="depth image must be single-channel 16-bit"):
+        f.depth_reader()
+
+
+def test_run_with_deferred_depth_skips_a_broken_depth_image_in_the_evaluation(tmp_path, caplog):
+    """The session defers depth decoding: the frames map as usual; a depth image that cannot be read
+    costs only its evaluation row (a warning naming the file), the same run as with good files."""
+    from lite_vo.config import load_profile
+    import dataclasses
+    import json
+
+    from lite_vo.runner import run_sequence
+    folder = write_tum_folder(tmp_path, n=12, width=64, height=48, colour=False)
+    cfg = load_profile("phone")
+    cfg = dataclasses.replace(cfg, system=dataclasses.replace(cfg.system, depth_eval_every=1, map_every_startup=1))
+    good = run_sequence(open_sequence(folder), cfg, tmp_path / "good", pose_source="gt")   # every frame maps
+    p = sorted((folder / "depth").iterdir())[5]
+    cv2.imwrite(str(p), textured_image(64, 48, colour=True))
+    with caplog.at_level("WARNING"):
+        bad = run_sequence(open_sequence(folder), cfg, tmp_path / "bad", pose_source="gt")
+    assert bad.status == good.status and len(good.poses) == 12
+    np.testing.assert_array_equal(np.array(bad.poses), np.array(good.poses))
+    rows = lambda out: json.loads((out / "depth_accuracy.json").read_text())   # noqa: E731
+    assert len(rows(tmp_path / "bad")) == len(rows(tmp_path / "good")) - 1 >= 3
+    assert any("depth evaluation skips frame 5" in r.message and p.name in r.message for r in caplog.records)

@@ -13,6 +13,7 @@ Imports numpy, cv2 (lazily), ``lite_vo.camera``, ``lite_vo.geometry`` and the io
 """
 from __future__ import annotations
 
+import functools
 import os
 import re
 import time
@@ -137,24 +138,29 @@ class FileSequence(Sequence):
     def __len__(self) -> int:
         return len(self.image_paths)
 
-    def _read(self, i: int) -> Frame:
+    def _read(self, i: int, defer_depth: bool = False) -> Frame:
         """Frame ``i``; InputError (naming the file) when it cannot be read."""
         img, colour = _imread(self.image_paths[i])
         _check_size(self.image_paths[i], img, self.camera, "image", self.calib_source)
-        depth = None
+        depth, reader = None, None
         if self.depth_paths is not None and self.depth_paths[i] is not None:
-            depth = _imread_depth(self.depth_paths[i], self.camera, self.depth_scale or TUM_DEPTH_SCALE)
-        return Frame(i, float(self.timestamps[i]), img, depth, colour)
+            args = (self.depth_paths[i], self.camera, self.depth_scale or TUM_DEPTH_SCALE)
+            if defer_depth:
+                reader = functools.partial(_imread_depth, *args)
+            else:
+                depth = _imread_depth(*args)
+        return Frame(i, float(self.timestamps[i]), img, depth, colour, depth_reader=reader)
 
-    def frame(self, i: int) -> Frame:
+    def frame(self, i: int, defer_depth: bool = False) -> Frame:
         """Frame ``i`` (random access; reads the files now). A file that cannot be read gives a
-        frame with ``image=None`` and ``error`` set."""
+        frame with ``image=None`` and ``error`` set. ``defer_depth``: do not decode the depth
+        image now; ``Frame.depth_reader`` reads it when called (most frames of a run never need it)."""
         n = len(self)
         if not -n <= i < n:
             raise IndexError(f"frame {i} out of range for {n} frames")
         i %= n
         try:
-            return self._read(i)
+            return self._read(i, defer_depth)
         except InputError as err:
             msg = str(err)
             if i in self._listed_in and "not found" in msg:
@@ -164,6 +170,11 @@ class FileSequence(Sequence):
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
             yield self.frame(i)
+
+    def frames(self, start: int = 0, defer_depth: bool = False) -> Iterator[Frame]:
+        """Frames ``start ..`` in order (see :meth:`frame` for ``defer_depth``)."""
+        for i in range(start, len(self)):
+            yield self.frame(i, defer_depth)
 
     def check_first_frame(self, scan: int = 30) -> None:
         """Open-time check: the first readable frame (among the first ``scan``) must match the

@@ -5,7 +5,7 @@ Imports numpy and ``lite_vo.geometry`` only.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -20,7 +20,9 @@ class Frame:
     (``image`` is its grey conversion), None for grey sources; ``error``: None, or for a frame
     that could not be read (unreadable, truncated, missing or wrong-size file) a one-line
     ``"<file>: <reason>"`` (then ``image``, ``depth`` and ``color`` are None). Readers yield bad
-    frames instead of stopping, so the caller decides how many it tolerates.
+    frames instead of stopping, so the caller decides how many it tolerates. ``depth_reader``: when
+    the frame was read with deferred depth (:meth:`FileSequence.frame` ``defer_depth=True``),
+    ``depth`` is None and calling this reads it (``InputError`` naming the file if it cannot).
     """
     index: int
     timestamp: float
@@ -28,6 +30,7 @@ class Frame:
     depth: Optional[np.ndarray] = None
     color: Optional[np.ndarray] = None
     error: Optional[str] = None
+    depth_reader: Optional[Callable[[], np.ndarray]] = None
 
     @property
     def ok(self) -> bool:
