@@ -545,6 +545,18 @@ def test_budget_subsamples_candidates(tex):
     assert all(free.update(f).stride == 1 for f, _ in frames[1:])
 
 
+def test_stage_cpu_times_only_when_asked(tex):
+    frames = _plane_frames(tex, 3, K_MAP)
+    m = Mapper(MappingConfig(), K_MAP)
+    m.initialize_random(frames[0][0])
+    st = m.update(frames[1][0])
+    assert st.stage_cpu_ms == {} and set(st.stage_ms) == {"propagate", "observe", "regularize", "fill"}
+    m.measure_cpu = True
+    st = m.update(frames[2][0])
+    assert set(st.stage_cpu_ms) == set(st.stage_ms) and all(v >= 0 for v in st.stage_cpu_ms.values())
+    assert sum(st.stage_cpu_ms.values()) > 0
+
+
 @pytest.mark.parametrize("shape", [(23, 37), (6, 5), (1, 1)])
 def test_any_image_size(shape):
     h, w = shape

@@ -169,7 +169,8 @@ class Mapper:
     Owned by one thread (the mapping thread). Members:
     ``config``, ``intrinsics`` (mapping resolution), ``state`` (per-pixel arrays),
     ``_cur`` (the frame the map lives in, with its gradients), ``_buffer`` (past frames, oldest
-    first, images in the ring ``_buf_images``), ``_rng`` (seeded, random initialisation).
+    first, images in the ring ``_buf_images``), ``_rng`` (seeded, random initialisation),
+    ``measure_cpu`` (set it to also record each stage's thread CPU time in ``stage_cpu_ms``).
     """
 
     def __init__(self, config: MappingConfig, intrinsics0: PinholeIntrinsics, seed: int = 0):
