@@ -688,13 +688,15 @@ def regularize_kernel(st, prm, o_valid):
 
     Vectorised: the map is copied once into padded float32 planes (inverse depth NaN where there is
     no hypothesis, so the compatibility test fails there without a branch), then every row is
-    accumulated offset by offset over the whole row (SIMD), in float32.
+    accumulated offset by offset over the whole row (SIMD). The sums are float64: float32 sums
+    change the map by about 1e-6 relative, which is enough to move a degenerate run (a static
+    camera, random init) elsewhere.
     """
     idepth, idepth_var, valid, validity, blacklist = st.idepth, st.idepth_var, st.valid, st.validity, st.blacklist
     o_idepth_s, o_var_s = st.idepth_s, st.var_s
     r = int(prm[P_REG_RADIUS])
-    dist_var = np.float32(prm[P_REG_DIST_VAR])
-    diff_fac = np.float32(prm[P_REG_DIFF_FAC])
+    dist_var = prm[P_REG_DIST_VAR]
+    diff_fac = prm[P_REG_DIFF_FAC]
     validity_th = prm[P_REG_VALIDITY_SUM]
     var_mode = int(prm[P_REG_VAR_MODE])
     h, w = idepth.shape
@@ -709,14 +711,14 @@ def regularize_kernel(st, prm, o_valid):
                 V[y + r, x + r] = idepth_var[y, x]
                 L[y + r, x + r] = validity[y, x]
     nd = 2 * r + 1
-    inv_tab = np.empty(nd * nd, np.float32)
+    inv_tab = np.empty(nd * nd, np.float64)
     for dy in range(nd):
         for dx in range(nd):
             inv_tab[dy * nd + dx] = ((dy - r) * (dy - r) + (dx - r) * (dx - r)) * dist_var
     for y in prange(h):
-        s = np.zeros(w, np.float32)
-        si = np.zeros(w, np.float32)
-        vs = np.zeros(w, np.float32)
+        s = np.zeros(w, np.float64)
+        si = np.zeros(w, np.float64)
+        vs = np.zeros(w, np.float64)
         vmin = np.empty(w, np.float32)
         dc = D[y + r, r:r + w]
         vc = V[y + r, r:r + w]
@@ -727,16 +729,16 @@ def regularize_kernel(st, prm, o_valid):
             Vr = V[y + dy]
             Lr = L[y + dy]
             for dx in range(nd):
-                add = inv_tab[dy * nd + dx]
+                add = np.float64(inv_tab[dy * nd + dx])
                 for x in range(w):
                     dn = Dr[x + dx]
                     vn = Vr[x + dx]
-                    diff = dn - dc[x]
-                    ok = diff_fac * diff * diff <= vn + vc[x]
-                    iv = np.float32(1.0) / (vn + add)
-                    s[x] += dn * iv if ok else np.float32(0.0)
-                    si[x] += iv if ok else np.float32(0.0)
-                    vs[x] += Lr[x + dx] if ok else np.float32(0.0)
+                    diff = np.float64(dn) - dc[x]
+                    ok = diff_fac * diff * diff <= np.float64(vn) + vc[x]   # as the reference: in float64
+                    iv = 1.0 / (np.float64(vn) + add)
+                    s[x] += dn * iv if ok else 0.0
+                    si[x] += iv if ok else 0.0
+                    vs[x] += Lr[x + dx] if ok else 0.0
                     if ok and vn < vmin[x]:
                         vmin[x] = vn
         for x in range(w):
