@@ -290,11 +290,28 @@ def test_garbage_image_is_lost(room_pair, kind):
     tracker = Tracker(TrackingConfig(), INTR, LEVELS, TRACK_LEVEL)
     res = tracker.track(ref, image_pyramid(garbage, LEVELS), np.eye(4))
     # either the residual stays large, or the brightness model "explains" the garbage by a gain near 0
-    assert res.lost and (res.mean_abs_residual > TrackingConfig().max_abs_residual
+    assert res.lost and (res.residual_spread > TrackingConfig().max_abs_residual
                          or res.affine[0] < 1 / TrackingConfig().max_gain_change), res.quality()
     # with the residual test off, the paper's good/(good+bad) test alone is too lenient here (documented)
     lenient = Tracker(dataclasses.replace(TrackingConfig(), max_abs_residual=0.0), INTR, LEVELS, TRACK_LEVEL)
     assert lenient.track(ref, image_pyramid(garbage, LEVELS), np.eye(4)).good_ratio > 0.5
+
+
+def test_residual_spread_ignores_a_common_offset():
+    """The lost test measures the residuals' spread around their median: a common brightness offset
+    (KITTI's exposure changes with affine brightness off; the alignment itself fine) does not count,
+    a residual that differs from point to point (a wrong pose, another scene) does."""
+    from lite_vo.tracking.tracker import _residual_spread
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0.0, 3.0, 4000)
+    sigma0, spread0 = _residual_spread(noise)
+    sigma1, spread1 = _residual_spread(noise + 20.0)
+    assert sigma1 == pytest.approx(sigma0) and spread1 == pytest.approx(spread0)
+    assert np.mean(np.abs(noise + 20.0)) > TrackingConfig().max_abs_residual > spread1   # offset: not lost
+    assert sigma0 == pytest.approx(3.0, rel=0.1) and spread0 == pytest.approx(3.0 * np.sqrt(2 / np.pi), rel=0.1)
+    wide = rng.uniform(-60.0, 60.0, 4000)                         # garbage: residuals all over the place
+    assert _residual_spread(wide)[1] > TrackingConfig().max_abs_residual
+    assert all(np.isnan(v) for v in _residual_spread(np.ones(20)))   # every 4th of 20: fewer than 8, unknown
 
 
 def test_bright_saturated_garbage_fails_good_ratio(room_pair):

@@ -21,7 +21,8 @@ class TrackingConfig:
     good_residual_const: float = param(40.0, "good-residual test: r^2 / (c^2 + g^2 |grad|^2) < 1; this is c", 0.0, 1000.0)
     good_residual_grad: float = param(0.5, "good-residual test gradient factor g", 0.0, 10.0)
     min_good_ratio: float = param(0.5, "lost when good/(good+bad) falls below this", 0.0, 1.0)
-    max_abs_residual: float = param(15.0, "lost when the finest level's mean |residual| (grey levels) exceeds this (0 = off)",
+    max_abs_residual: float = param(15.0, "lost when the finest level's residuals spread more than this: mean "
+                                    "|r - median(r)| in grey levels (a common brightness offset does not count; 0 = off)",
                                     0.0, 255.0)
     min_inside_ratio: float = param(0.01, "lost when fewer than this share of the level's pixels warp into the image", 0.0, 1.0)
     affine_brightness: bool = param(False, "estimate the affine brightness change I_new = a*I_ref + b (a = exp(alpha)) "

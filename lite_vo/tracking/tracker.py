@@ -33,6 +33,8 @@ class TrackingResult:
     ``|I_new - (a I_ref + b)|`` there (grey levels); ``affine``: ``(a, b)`` with
     ``I_new = a * I_ref + b`` (relative to the reference frame); ``residual_sigma``: robust std
     (1.4826 MAD) of the finest level's residuals (grey levels at the tracking level);
+    ``residual_spread``: their mean absolute deviation from the median (the lost test's measure: a
+    common brightness offset does not count, a wrong alignment or another scene does);
     ``noise_sigma``: the image noise that explains it at the mapping resolution (grey levels; the
     residual std divided by the noise gain of the tracking pyramid, smoothing and both images);
     ``sigma_i``: the intensity noise std the weights used; ``lost_reason``: '' or why.
@@ -48,6 +50,7 @@ class TrackingResult:
     affine: tuple = (1.0, 0.0)
     lost_reason: str = ""
     mean_abs_residual: float = float("nan")
+    residual_spread: float = float("nan")   # mean |r - median(r)|: the residual without a common offset
     residual_sigma: float = float("nan")
     noise_sigma: float = float("nan")
     sigma_i: float = float("nan")
@@ -57,7 +60,8 @@ class TrackingResult:
 
     def quality(self) -> dict:
         """Scalar quality numbers as a plain dict (for logs and FrameResult.quality)."""
-        return {"residual": self.residual, "mean_abs_residual": self.mean_abs_residual, "good_ratio": self.good_ratio, "inside_ratio": self.inside_ratio,
+        return {"residual": self.residual, "mean_abs_residual": self.mean_abs_residual,
+                "residual_spread": self.residual_spread, "good_ratio": self.good_ratio, "inside_ratio": self.inside_ratio,
                 "points_used": self.points_used, "lost": self.lost, "lost_reason": self.lost_reason,
                 "affine_a": self.affine[0], "affine_b": self.affine[1], "residual_sigma": self.residual_sigma,
                 "noise_sigma": self.noise_sigma, "track_ms": self.total_ms}
@@ -117,12 +121,14 @@ def motion_hypotheses(T_ref_last: np.ndarray, velocity: np.ndarray, rotation_rad
     return out
 
 
-def _robust_sigma(r: np.ndarray) -> float:
-    """1.4826 * median absolute deviation of every 4th residual (NaN when there are fewer than 8)."""
+def _residual_spread(r: np.ndarray) -> tuple[float, float]:
+    """Of every 4th residual: (1.4826 * median absolute deviation, mean absolute deviation from the
+    median); both ignore a common offset (a global brightness change). NaN when fewer than 8."""
     r = r[::4]
     if r.size < 8:
-        return float("nan")
-    return float(1.4826 * np.median(np.abs(r - np.median(r))))
+        return float("nan"), float("nan")
+    dev = np.abs(r - np.median(r))
+    return float(1.4826 * np.median(dev)), float(np.mean(dev))
 
 
 class Tracker:
@@ -314,7 +320,7 @@ class Tracker:
                 finest_acc = acc.copy()
                 finest_status = status
                 finest_err = float(self._stats[kernels.ST_ERR])
-                finest_sigma = _robust_sigma(self._buf[6, :int(self._stats[kernels.ST_LAST_N])])
+                finest_sigma, finest_spread = _residual_spread(self._buf[6, :int(self._stats[kernels.ST_LAST_N])])
             level_ms[lvl] = (time.perf_counter() - t0) * 1e3
 
         lv = ref.levels[finest]
@@ -335,6 +341,7 @@ class Tracker:
         res.residual = finest_err
         res.mean_abs_residual = float(finest_acc[kernels.ACC_ABS_R] / max(n_in, 1.0))
         res.residual_sigma = finest_sigma
+        res.residual_spread = finest_spread
         res.noise_sigma = finest_sigma / (self.noise_gain(ref.smooth_sigma) * float(np.sqrt(1.0 + aff[0] * aff[0])))
         if np.all(np.isfinite(T)):
             res.T_ref_new = inverse_se3(project_to_se3(T))
@@ -344,7 +351,7 @@ class Tracker:
             res.lost_reason = "too few points inside the image"
         elif res.good_ratio < c.min_good_ratio:
             res.lost_reason = "too few good residuals"
-        elif c.max_abs_residual > 0 and not res.mean_abs_residual <= c.max_abs_residual:
+        elif c.max_abs_residual > 0 and not res.residual_spread <= c.max_abs_residual:
             res.lost_reason = "residual too large"
         elif not 1.0 / c.max_gain_change <= res.affine[0] <= c.max_gain_change:
             res.lost_reason = "implausible brightness change"
