@@ -93,12 +93,17 @@ class HeightField:
         pts = np.stack([gx[m] + xy[0], gy[m] + xy[1]], 1)
         return bool(np.all(self.at(pts) == FLOOR))
 
-    def heights(self) -> np.ndarray:
-        """Physics heights (n, n) for pybullet: floor cells their fused floor height (within the floor
-        band), everything else a wall, fixed range."""
+    def heights(self, upsample: int = 1) -> np.ndarray:
+        """Physics heights (k n, k n) for pybullet, ``k = upsample`` vertices per cell and side (vertex
+        spacing ``cell / k``): floor cells their fused floor height (within the floor band), everything
+        else a wall, fixed range. pybullet interpolates linearly between vertices, so a wall is a ramp
+        ``cell / k`` wide: with ``k = 2`` a wheel meets a steep face instead of climbing a slope and
+        rolling the car over."""
         s = self.spec
         fh = 0.0 if self.floor_height is None else np.clip(self.floor_height, s.low, -s.low)
         h = np.where(self.state == FLOOR, fh, s.wall)
+        if upsample > 1:
+            h = np.repeat(np.repeat(h, upsample, axis=0), upsample, axis=1)
         h[0, :] = h[-1, :] = h[:, 0] = h[:, -1] = s.wall
         h[0, 0] = s.low
         return h

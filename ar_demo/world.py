@@ -180,7 +180,8 @@ class ARWorld:
 
     def _install(self, model: WorldModel) -> None:
         self.build_ms.append(model.build_ms)
-        self.physics.set_height_field(model.field.heights(), model.field.spec.cell)
+        k = self.cfg.physics_upsample
+        self.physics.set_height_field(model.field.heights(k), model.field.spec.cell / k)
         self.model, self.field = model, model.field
         self._inside_geometry = False
         if self.has_car:                          # the new world puts real geometry where the car is
