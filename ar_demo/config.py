@@ -54,7 +54,10 @@ class ARConfig:
     min_obstacle_votes: int = param(5, "obstacle votes a cell needs to be an obstacle", 1, 10**6)
     obstacle_share: float = param(0.5, "share of a cell's votes that must be obstacle votes for an obstacle", 0.0, 1.0)
     min_floor_votes: int = param(2, "floor votes a cell needs to be floor", 1, 10**6)
+    floor_height_recency: float = param(0.5, "per-cell floor height: weight of a newer keyframe's heights against the older ones (1: newest only)", 0.0, 1.0)
+    floor_smooth: int = param(7, "per-cell floor height: mean over this many cells square (1: no smoothing)", 1, 101)
     floor_margin: int = param(1, "grow the seen floor by this many cells into unknown cells", 0, 100)
+    physics_upsample: int = param(2, "pybullet height-field vertices per cell and side (walls become ramps 1/k cell wide: steeper, no roll-overs)", 1, 8)
     wall_height: float = param(2.0, "physics height of obstacles and unknown cells (car lengths)", 0.1, 100.0)
     world_keyframes: bool = param(True, "fuse the VO's keyframes (false: the newest map only, as in the paper)")
     # --- physics
@@ -67,7 +70,7 @@ class ARConfig:
     async_world: bool = param(True, "build world models in a worker thread (false: synchronous, deterministic)")
     start_after_s: float = param(0.5, "start the AR world this long after the first map (lets a random initialisation converge)", 0.0, 1000.0)
     start_after_monocular_s: float = param(2.0, "as start_after_s when the VO map is not metric (random initialisation)", 0.0, 1000.0)
-    spawn_height: float = param(0.15, "drop the car from this height above the ground (car lengths)", 0.0, 10.0)
+    spawn_height: float = param(0.05, "drop the car from this height above the ground (car lengths)", 0.0, 10.0)
     # --- autopilot
     drive_speed: float = param(12.0, "target wheel speed when driving (rad/s)", 0.0, 200.0)
     drive_force: float = param(8.0, "maximum wheel motor force (N)", 0.0, 1000.0)
@@ -81,9 +84,11 @@ class ARConfig:
     target_radius: float = param(1.5, "no target steering within this distance of the view target (car lengths)", 0.0, 100.0)
     blocked_grace_s: float = param(0.5, "ignore low speed this long after a drive/reverse switch (s)", 0.0, 100.0)
     spawn_v_rel: float = param(0.25, "spawn the car on the ground seen this far below the image centre (image heights)", -0.5, 0.5)
-    target_v_rel: float = param(0.15, "the autopilot aims at the ground seen this far below the image centre", -0.5, 0.5)
+    target_v_rel: float = param(0.0, "the autopilot aims at the ground seen this far below the image centre", -0.5, 0.5)
     wander_period_s: float = param(4.0, "period of the gentle steering wander (s)", 0.1, 1000.0)
     respawn_out_of_view_s: float = param(2.0, "respawn on seen floor in view after the car was out of view this long (s; 0: never)", 0.0, 1000.0)
+    spawn_clearance: float = param(0.75, "spawn only where seen floor extends this far around the car (car lengths)", 0.0, 10.0)
+    respawn_hidden_s: float = param(0.2, "respawn on seen floor in view after obstacles of the world hid the car from the camera this long (s; 0: never)", 0.0, 1000.0)
     respawn_tilt_deg: float = param(60.0, "respawn when the car is tilted more than this for a second (fell over)", 1.0, 180.0)
     view_margin: float = param(0.12, "the autopilot aims and spawns this far inside the image border (image fraction)", 0.0, 0.45)
     # --- rendering / video

@@ -17,12 +17,20 @@ of the keyframes (recomputed from the cached per-keyframe points at each rebuild
 seen once stays as long as its keyframe does, re-observations add votes, corrected keyframe poses
 move their points and thinned keyframes drop out.
 
-For pybullet the field becomes heights: floor 0, obstacles and unknown cells a wall (the car never
+**Local floor height**: the ground plane is estimated once, but the camera pose drifts against it
+(ICL: the fused floor is 3-4 cm off late in the run), so a car on the plane sinks into the floor the
+camera sees. Each floor cell therefore gets the mean height of its floor votes, blended over the
+keyframes from old to new with weight ``floor_height_recency`` for the newer ones (the newest agree
+best with the current camera) and smoothed over ``floor_smooth`` cells (drift is smooth; single-cell
+noise would be bumps the car gets stuck on).
+
+For pybullet the field becomes heights: floor cells their local floor height (within the floor
+band), obstacles and unknown cells a wall (the car never
 drives where nothing was seen), the outer ring a wall, and one border cell pinned to the lowest height
 so that every replacement has the same height range (pybullet centres a height field on
 (min + max) / 2 and keeps the first bounds on an in-place replacement).
 
-Imports: numpy, lite_vo (camera, geometry), ar_demo (inpaint, ground).
+Imports: numpy, OpenCV (box filter, lazily), lite_vo (camera, geometry), ar_demo (inpaint, ground).
 """
 from __future__ import annotations
 
@@ -68,6 +76,7 @@ class HeightField:
     obstacle_votes: np.ndarray
     obstacle_height: np.ndarray  # mean obstacle height per cell (physics units), 0 elsewhere
     keyframes: int = 0
+    floor_height: np.ndarray | None = None   # floor cells: the fused local floor height (physics units)
 
     def at(self, xy) -> np.ndarray:
         """States at physics-frame points (UNKNOWN outside the grid)."""
@@ -84,10 +93,17 @@ class HeightField:
         pts = np.stack([gx[m] + xy[0], gy[m] + xy[1]], 1)
         return bool(np.all(self.at(pts) == FLOOR))
 
-    def heights(self) -> np.ndarray:
-        """Physics heights (n, n) for pybullet: floor 0, everything else a wall, fixed range."""
+    def heights(self, upsample: int = 1) -> np.ndarray:
+        """Physics heights (k n, k n) for pybullet, ``k = upsample`` vertices per cell and side (vertex
+        spacing ``cell / k``): floor cells their fused floor height (within the floor band), everything
+        else a wall, fixed range. pybullet interpolates linearly between vertices, so a wall is a ramp
+        ``cell / k`` wide: with ``k = 2`` a wheel meets a steep face instead of climbing a slope and
+        rolling the car over."""
         s = self.spec
-        h = np.where(self.state == FLOOR, 0.0, s.wall)
+        fh = 0.0 if self.floor_height is None else np.clip(self.floor_height, s.low, -s.low)
+        h = np.where(self.state == FLOOR, fh, s.wall)
+        if upsample > 1:
+            h = np.repeat(np.repeat(h, upsample, axis=0), upsample, axis=1)
         h[0, :] = h[-1, :] = h[:, 0] = h[:, -1] = s.wall
         h[0, 0] = s.low
         return h
@@ -164,7 +180,7 @@ class WorldFusion:
         idepth_var) plus ``extra`` maps (points not cached, e.g. the newest map)."""
         keys = set()
         sets = []
-        for kf in keyframes:
+        for kf in sorted(keyframes, key=lambda k: k.index):
             sets.append(self._points(kf))
             keys.add((kf.index, kf.T_world_cam.tobytes()))
         for key in list(self._cache):
@@ -174,26 +190,37 @@ class WorldFusion:
             sets.append(self.frame.to_phys(keyframe_points(m.idepth, m.idepth_var, m.camera, m.T_world_cam,
                                                            self.ground, self.cfg)))
         P = np.concatenate(sets) if sets else np.zeros((0, 3))
-        return fuse_points(P, self.spec, self.cfg, self.car, keyframes=len(sets))
+        source = np.repeat(np.arange(len(sets)), [len(p) for p in sets])
+        return fuse_points(P, self.spec, self.cfg, self.car, keyframes=len(sets), source=source)
 
 
-def fuse_points(P: np.ndarray, spec: FieldSpec, cfg, car_length: float, keyframes: int = 0) -> HeightField:
-    """Classify the cells from physics-frame points (see the module docstring)."""
+def _cell_means(key: np.ndarray, z: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per flat key in ``[0, size)``: (count, mean of ``z``)."""
+    cnt = np.bincount(key, minlength=size).astype(np.float64)
+    tot = np.bincount(key, weights=z, minlength=size)
+    return cnt, np.where(cnt > 0, tot / np.maximum(cnt, 1.0), 0.0)
+
+
+def fuse_points(P: np.ndarray, spec: FieldSpec, cfg, car_length: float, keyframes: int = 0,
+                source: np.ndarray | None = None) -> HeightField:
+    """Classify the cells from physics-frame points (see the module docstring). ``source``: per point,
+    the keyframe it comes from, oldest first (default: every point its own keyframe)."""
     n = spec.n
     ix, iy, inside = spec.index(P)
     z = P[:, 2] if len(P) else np.zeros(0)
+    src = np.arange(len(z)) if source is None else np.asarray(source, dtype=np.int64)
     band = cfg.floor_band * car_length
     floor = inside & (np.abs(z) <= band)
     obst = inside & (z > cfg.obstacle_step * car_length) & (z <= cfg.obstacle_top * car_length)
-    fv = np.zeros((n, n))
-    ov = np.zeros((n, n))
-    oh = np.zeros((n, n))
-    np.add.at(fv, (ix[floor], iy[floor]), 1.0)
-    np.add.at(ov, (ix[obst], iy[obst]), 1.0)
-    np.add.at(oh, (ix[obst], iy[obst]), z[obst])
+    cell = np.where(inside, ix * n + iy, 0)
+    fv, _ = _cell_means(cell[floor], z[floor], n * n)
+    ov, oh = _cell_means(cell[obst], z[obst], n * n)
+    fv, ov, oh = fv.reshape(n, n), ov.reshape(n, n), oh.reshape(n, n)
     is_obst = (ov >= cfg.min_obstacle_votes) & (ov >= cfg.obstacle_share * (ov + fv))
     is_floor = (fv >= cfg.min_floor_votes) & ~is_obst
     state = np.where(is_obst, OBSTACLE, np.where(is_floor, FLOOR, UNKNOWN)).astype(np.int8)
+    floor_h = _smooth(_floor_heights(cell[floor], z[floor], src[floor], n, cfg.floor_height_recency), fv > 0,
+                      cfg.floor_smooth)
     for _ in range(cfg.floor_margin):
         f = state == FLOOR
         g = f.copy()
@@ -201,8 +228,53 @@ def fuse_points(P: np.ndarray, spec: FieldSpec, cfg, car_length: float, keyframe
         g[:-1] |= f[1:]
         g[:, 1:] |= f[:, :-1]
         g[:, :-1] |= f[:, 1:]
-        state[g & (state == UNKNOWN)] = FLOOR
-    return HeightField(spec, state, fv, ov, np.where(ov > 0, oh / np.maximum(ov, 1), 0.0), keyframes)
+        new = g & (state == UNKNOWN)
+        floor_h[new] = _neighbour_mean(floor_h, f)[new]
+        state[new] = FLOOR
+    return HeightField(spec, state, fv, ov, oh, keyframes, np.where(state == FLOOR, floor_h, 0.0))
+
+
+def _floor_heights(cell: np.ndarray, z: np.ndarray, src: np.ndarray, n: int, recency: float) -> np.ndarray:
+    """Per-cell floor height: the keyframes' mean floor-vote heights, blended oldest to newest with
+    weight ``recency`` for the newer one (1: the newest keyframe that saw the cell decides). The camera
+    pose drifts against the ground plane: the newest keyframes agree best with the current camera."""
+    h = np.zeros(n * n)
+    seen = np.zeros(n * n, bool)
+    if len(z) == 0:
+        return h.reshape(n, n)
+    order = np.argsort(src, kind="stable")
+    cell, z, src = cell[order], z[order], src[order]
+    bounds = np.flatnonzero(np.diff(src)) + 1
+    for c, zz in zip(np.split(cell, bounds), np.split(z, bounds)):
+        cnt, mean = _cell_means(c, zz, n * n)
+        m = cnt > 0
+        h[m] = np.where(seen[m], (1.0 - recency) * h[m] + recency * mean[m], mean[m])
+        seen |= m
+    return h.reshape(n, n)
+
+
+def _smooth(h: np.ndarray, mask: np.ndarray, size: int) -> np.ndarray:
+    """Mean of ``h`` over the cells of ``mask`` in a ``size`` x ``size`` window (normalised box filter):
+    the drift of the floor is smooth, the noise of single cells would be bumps for the car."""
+    if size <= 1:
+        return h
+    import cv2
+    w = mask.astype(np.float64)
+    num = cv2.blur(h * w, (size, size), borderType=cv2.BORDER_CONSTANT)
+    den = cv2.blur(w, (size, size), borderType=cv2.BORDER_CONSTANT)
+    return np.where(den > 0, num / np.maximum(den, 1e-12), 0.0)
+
+
+def _neighbour_mean(h: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Mean of ``h`` over the 4-neighbours inside ``mask`` (0 where there is none)."""
+    tot = np.zeros_like(h)
+    cnt = np.zeros_like(h)
+    for sl_to, sl_from in (((slice(1, None),), (slice(None, -1),)), ((slice(None, -1),), (slice(1, None),)),
+                           ((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
+                           ((slice(None), slice(None, -1)), (slice(None), slice(1, None)))):
+        tot[sl_to] += np.where(mask[sl_from], h[sl_from], 0.0)
+        cnt[sl_to] += mask[sl_from]
+    return np.where(cnt > 0, tot / np.maximum(cnt, 1.0), 0.0)
 
 
 def field_mesh(field: HeightField, frame) -> tuple[np.ndarray, np.ndarray]:

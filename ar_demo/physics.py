@@ -166,7 +166,8 @@ def pose_matrix(pos, quat_xyzw) -> np.ndarray:
 @dataclass
 class Autopilot:
     """Drive forward with a gentle wander, steer towards a target (to stay in view), reverse with
-    opposite steering when blocked. All quantities in physics units (car length ``car_length``)."""
+    opposite steering when blocked (hardly any progress, or pressed against an obstacle for
+    ``blocked_time_s``). All quantities in physics units (car length ``car_length``)."""
     cfg: object
     car_length: float
     mode: str = "drive"
@@ -174,14 +175,17 @@ class Autopilot:
     t: float = 0.0
     reversals: int = 0
     last_steer: float = 0.0
+    contact_s: float = 0.0                           # how long the car has touched an obstacle
     _history: list = field(default_factory=list)     # (t, x, y) of the last blocked_time_s
 
     def command(self, dt: float, pos_xy, heading: float, forward_speed: float,
-                target_xy=None) -> tuple[float, float]:
-        """(wheel target velocity rad/s, steering angle rad) for the next ``dt`` seconds."""
+                target_xy=None, contact: bool = False) -> tuple[float, float]:
+        """(wheel target velocity rad/s, steering angle rad) for the next ``dt`` seconds; ``contact``:
+        the car touches an obstacle (a steep contact)."""
         c = self.cfg
         self.t += dt
         self.t_mode += dt
+        self.contact_s = self.contact_s + dt if contact else 0.0
         wander = c.wander_amplitude * c.max_steer * math.sin(2 * math.pi * self.t / c.wander_period_s)
         if self.mode == "drive":
             steer = wander
@@ -197,11 +201,13 @@ class Autopilot:
             t0, x0, y0 = self._history[0]
             progress = math.hypot(pos_xy[0] - x0, pos_xy[1] - y0)
             window = self.t - t0
-            blocked = (self.t_mode > c.blocked_grace_s and window >= 0.9 * c.blocked_time_s
-                       and progress < c.blocked_speed * self.car_length * window)
+            blocked = self.t_mode > c.blocked_grace_s and (
+                (window >= 0.9 * c.blocked_time_s and progress < c.blocked_speed * self.car_length * window)
+                or self.contact_s >= c.blocked_time_s)
             if blocked:
                 self.mode, self.t_mode = "reverse", 0.0
                 self._history.clear()
+                self.contact_s = 0.0
                 self.reversals += 1
                 self.last_steer = -math.copysign(c.max_steer, steer if steer else 1.0)
             else:
@@ -295,8 +301,8 @@ class PhysicsWorld:
 
     # ------------------------------------------------------------------ car
     def spawn_car(self, xy_phys, yaw: float) -> None:
-        """Load the racecar above ``xy_phys`` (dropped from ``spawn_height`` car lengths above the
-        surface below it), heading ``yaw`` about the up axis."""
+        """Load the racecar with its footprint centre above ``xy_phys`` (dropped from ``spawn_height``
+        car lengths above the surface below it), heading ``yaw`` about the up axis."""
         pb, c = self._pb, self.client
         if self.car >= 0:
             pb.removeBody(self.car, physicsClientId=c)
@@ -309,11 +315,19 @@ class PhysicsWorld:
         self._footprint = np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]])
         ground = self.ray_down(xy_phys)
         z = (0.0 if ground is None else ground) + self.cfg.spawn_height * self.car_length
-        pb.resetBasePositionAndOrientation(self.car, [float(xy_phys[0]), float(xy_phys[1]), z],
+        c_, s_ = math.cos(yaw), math.sin(yaw)
+        off = self._footprint
+        base = (float(xy_phys[0]) - c_ * off[0] + s_ * off[1], float(xy_phys[1]) - s_ * off[0] - c_ * off[1])
+        pb.resetBasePositionAndOrientation(self.car, [base[0], base[1], z],
                                            pb.getQuaternionFromEuler([0, 0, yaw]), physicsClientId=c)
         for j in WHEELS:
             pb.setJointMotorControl2(self.car, j, pb.VELOCITY_CONTROL, targetVelocity=0, force=0, physicsClientId=c)
         self.autopilot = Autopilot(self.cfg, self.car_length)
+
+    def car_centre_xy(self) -> np.ndarray:
+        """Physics-frame xy of the centre of the car's footprint (the base frame's origin is at its rear)."""
+        T = self.car_state().T_phys_base
+        return T[:2, 3] + T[:2, :3] @ self._footprint
 
     def car_state(self) -> CarState:
         pb, c = self._pb, self.client
@@ -339,7 +353,9 @@ class PhysicsWorld:
         if self.car >= 0 and autopilot and self.autopilot is not None:
             st = self.car_state()
             yaw = math.atan2(st.T_phys_base[1, 0], st.T_phys_base[0, 0])
-            vel, steer = self.autopilot.command(n / self.cfg.physics_hz, st.T_phys_base[:2, 3], yaw, st.speed, target_xy)
+            centre = st.T_phys_base[:2, 3] + st.T_phys_base[:2, :3] @ self._footprint
+            vel, steer = self.autopilot.command(n / self.cfg.physics_hz, centre, yaw, st.speed, target_xy,
+                                                contact=self._in_contact)
             self.drive(vel, steer)
         for _ in range(n):
             pb.stepSimulation(physicsClientId=c)

@@ -10,10 +10,14 @@ camera poses and reads the car back.
 **Car size**: metric runs: ``car_length_m`` (0.3 m, a toy car); monocular runs: ``car_length_rel_height``
 times the camera height above the ground plane at the start (0.2: a 30 cm car for a camera 1.5 m up).
 
-**Car behaviour**: it spawns upright on seen floor inside the current view (a floor disc of its size,
-not hidden behind obstacles of the field), the autopilot steers towards seen floor in the lower middle
-of the view around obstacles of the field, and it respawns there when it fell, flipped, left the
-field, or stayed out of view for ``respawn_out_of_view_s``.
+**Car behaviour**: it spawns upright on seen floor inside the current view (its footprint centre on
+a floor disc of ``spawn_clearance`` car lengths, not hidden behind obstacles of the field), the
+autopilot steers towards seen floor in the lower middle of the view around obstacles of the field
+(and backs up when blocked or pressed against an obstacle), and it respawns there when it fell,
+flipped, left the field, stayed out of view for ``respawn_out_of_view_s`` or hidden behind obstacles
+of the field for ``respawn_hidden_s``. It stands on the fused local floor height (see
+:mod:`ar_demo.heightfield`), so it stays on the floor the current camera sees when the pose drifts
+against the ground plane.
 
 Ownership: one thread (the session's) calls every method; the world-model worker thread only
 builds meshes from the copies it is handed (:class:`~ar_demo.world_model.AsyncWorldModelBuilder`).
@@ -77,6 +81,7 @@ class ARWorld:
         self._pending: WorldModel | None = None  # built synchronously (async_world=false)
         self._out_of_view_s = 0.0
         self._tilted_s = 0.0
+        self._hidden_s = 0.0                     # how long obstacles of the field hid the car from the camera
         self._inside_geometry = False
         self.spawns = 0
         self.respawn_reasons: dict[str, int] = {}
@@ -175,12 +180,12 @@ class ARWorld:
 
     def _install(self, model: WorldModel) -> None:
         self.build_ms.append(model.build_ms)
-        self.physics.set_height_field(model.field.heights(), model.field.spec.cell)
+        k = self.cfg.physics_upsample
+        self.physics.set_height_field(model.field.heights(k), model.field.spec.cell / k)
         self.model, self.field = model, model.field
         self._inside_geometry = False
         if self.has_car:                          # the new world puts real geometry where the car is
-            pos = self.physics.car_state().T_phys_base[:2, 3]
-            self._inside_geometry = not self.field.free_disc(pos, 0.3 * self.physics.car_length)
+            self._inside_geometry = not self.field.free_disc(self.physics.car_centre_xy(), 0.3 * self.physics.car_length)
 
     def step(self, dt: float, T_world_cam: np.ndarray | None) -> None:
         """Advance the simulation; spawn, steer and respawn the car with respect to the current view."""
@@ -267,7 +272,7 @@ class ARWorld:
         return None
 
     def _try_spawn(self, T: np.ndarray, why: str) -> bool:
-        xy = self._floor_in_view(T, self.cfg.spawn_v_rel)
+        xy = self._floor_in_view(T, self.cfg.spawn_v_rel, radius_cars=self.cfg.spawn_clearance)
         if xy is None:
             return False
         fwd = self.physics.frame.R_phys_world @ T[:3, 2]
@@ -275,7 +280,8 @@ class ARWorld:
         self.physics.spawn_car(xy, yaw)
         self.spawns += 1
         self.respawn_reasons[why] = self.respawn_reasons.get(why, 0) + 1
-        self._out_of_view_s = self._tilted_s = 0.0
+        self._out_of_view_s = self._tilted_s = self._hidden_s = 0.0
+        self._inside_geometry = False            # the new place is free (it was the old one that was not)
         return True
 
     def _steer_target(self, T: np.ndarray):
@@ -283,8 +289,7 @@ class ARWorld:
         goal = self._floor_in_view(T, self.cfg.target_v_rel, radius_cars=0.4)
         if goal is None:
             return None
-        st = self.physics.car_state()
-        pos = st.T_phys_base[:2, 3]
+        pos = self.physics.car_centre_xy()
         d = goal - pos
         dist = float(np.hypot(*d))
         L = self.physics.car_length
@@ -320,8 +325,12 @@ class ARWorld:
                 self._out_of_view_s = 0.0
             else:
                 self._out_of_view_s += dt
-            lim = self.cfg.respawn_out_of_view_s
+            cam = ph.frame.to_phys(T[:3, 3][None])[0]
+            self._hidden_s = 0.0 if self._visible(cam, ph.car_centre_xy()) else self._hidden_s + dt
+            lim, lim_hidden = self.cfg.respawn_out_of_view_s, self.cfg.respawn_hidden_s
             if lim > 0 and self._out_of_view_s > lim:
                 reason = "out of view"
+            elif lim_hidden > 0 and self._hidden_s > lim_hidden:
+                reason = "hidden behind real geometry"
         if reason is not None and T is not None:
             self._try_spawn(T, reason)

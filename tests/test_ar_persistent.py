@@ -107,14 +107,15 @@ def test_car_spawns_on_seen_floor_in_view():
 
 
 def test_icl_car_lives_in_the_room(tmp_path):
-    """Shortened issue-15 check on ICL (90 frames, VO poses, world built synchronously: deterministic;
-    the full run: ``python tools/bench_ar_world.py`` -> benchmarks/ar_world.md).
+    """The issue-15 check on ICL living room 211 (all 211 frames, VO poses, world built synchronously:
+    deterministic; the same run as ``python tools/bench_ar_world.py`` -> benchmarks/ar_world.md).
 
-    A regression guard at what the system achieves, not the issue's targets. Issue-15 targets: footprint
-    centre in view >= 70 % of the frames from spawn, on a real surface >= 90 % where in view, hidden
-    <= 5 %, tilt <= 20 deg in >= 90 %. Measured on these 90 frames: 75 frames from spawn, in view
-    42.7 % (the camera turns away from the floor at frame ~39; missed), on a surface 90.6 %, hidden 0 %,
-    upright 100 %."""
+    Issue-15 targets: footprint centre in view >= 70 % of the frames from spawn, on a real surface
+    >= 90 % where in view, hidden <= 5 %, tilt <= 20 deg in >= 90 %. Measured: in view 70.4 %, on a
+    surface 100 %, hidden 0 %, upright 100 %. The car's path is chaotic (small changes of the VO or the
+    world updates send it elsewhere: with rebuilds every 3-7 frames instead of 5, in view 67-88 %, on a
+    surface >= 99 %, hidden <= 2 %, upright >= 95 %), so the asserts keep a margin below the targets
+    for the in-view share and tilt and hold the surface targets themselves."""
     seq = shared_sequence("icl_livingroom_211")
     from ar_demo.evaluate import evaluate_ar_run
     from ar_demo.render import create_context
@@ -123,10 +124,10 @@ def test_icl_car_lives_in_the_room(tmp_path):
     except Exception as err:                              # noqa: BLE001
         pytest.skip(f"no off-screen OpenGL: {err}")
     from ar_demo.run import run_ar
-    run_ar(seq, tmp_path / "ar.mp4", max_frames=90, cfg=ARConfig(async_world=False))
+    run_ar(seq, tmp_path / "ar.mp4", cfg=ARConfig(async_world=False))
     r = evaluate_ar_run(seq, tmp_path)
-    assert r["frames_from_spawn"] >= 70                   # spawned within the first 20 frames
-    assert r["in_view"] >= 0.40
-    assert r["on_surface_in_view"] >= 0.85
+    assert r["frames_from_spawn"] >= 190                  # spawned within the first 21 frames
+    assert r["in_view"] >= 0.60
+    assert r["on_surface_in_view"] >= 0.90
     assert r["hidden_in_view"] <= 0.05
-    assert r["upright_20deg"] >= 0.95
+    assert r["upright_20deg"] >= 0.90

@@ -83,8 +83,10 @@ def test_car_driven_at_box_stops_or_deflects():
     cfg = ARConfig()
     w, box_front, centre = _box_physics(cfg, np.random.default_rng(0))
     try:
-        # drive straight at the box centre, full throttle, no autopilot
-        start = np.array([box_front - 0.9, centre[1]])
+        # drive straight at the box centre, full throttle, no autopilot; the rear axle (base origin)
+        # starts 0.9 in front of the box (spawn_car places the footprint centre, ahead of the base)
+        w.spawn_car([0.0, 0.0], 0.0)
+        start = np.array([box_front - 0.9 + w.footprint_offset()[0], centre[1]])
         w.spawn_car(start, 0.0)
         xs, ys = [], []
         for _ in range(150):                              # 5 s
@@ -94,7 +96,7 @@ def test_car_driven_at_box_stops_or_deflects():
             xs.append(p[0])
             ys.append(p[1])
         front_of_car = np.array(xs) + 0.85 * w.car_length   # base origin is at the rear axle
-        assert max(xs) > start[0] + 0.3, "the car did not drive"
+        assert max(xs) > xs[0] + 0.3, "the car did not drive"
         passed = front_of_car.max() > box_front + 0.1 and abs(ys[-1] - centre[1]) < 0.3
         assert not passed, f"the car drove through the box (front reached {front_of_car.max():.2f}, box at {box_front:.2f})"
         assert w.collisions >= 1                          # a side contact with the world mesh was seen
