@@ -231,7 +231,7 @@ class VisualOdometry:
         self._initialized = False
         self.metric = False  # True when the map has metric scale (depth images)
         # keyframe history (thread-safe; filled where maps are published, read by sinks)
-        self.keyframes = KeyframeStore()
+        self.keyframes = KeyframeStore(max_bytes=int(config.system.keyframe_memory_mb * 2**20))
         self._scale_id = 0   # a new id for every map with a new monocular scale
         if config.system.mode == "realtime" and depth_source == "filter":
             self._thread = threading.Thread(target=self._mapping_loop, name="lite_vo-mapping", daemon=True)
