@@ -75,3 +75,25 @@ def test_vo_fills_the_store_and_session_hands_it_to_sinks(synth_small):
     for a, b in zip(kfs, kfs[1:]):                        # each keyframe moved enough from the previous one
         assert np.linalg.norm(a.T_world_cam[:3, 3] - b.T_world_cam[:3, 3]) > 0 or \
             not np.allclose(a.T_world_cam[:3, :3], b.T_world_cam[:3, :3])
+
+
+def test_store_bound_comes_from_the_profile(synth_small):
+    """``system.keyframe_memory_mb`` bounds the store of a run: a 1.5 MB bound keeps the store under it
+    (a keyframe at this size is well under 1 MB), where the default keeps more."""
+    import lite_vo
+    from lite_vo.session import OutputSink, Session
+
+    class Grab(OutputSink):
+        def on_start(self, info):
+            self.store = info.keyframes
+
+    sizes = {}
+    for mb in (96.0, 1.5):
+        g = Grab()
+        cfg = lite_vo.load_profile("phone", ['system.init="random"', f"system.keyframe_memory_mb={mb}"])
+        Session(synth_small, cfg, sinks=[g], pose_source="gt").run()
+        assert g.store.max_bytes == int(mb * 2**20)
+        kfs = g.store.snapshot()
+        sizes[mb] = (len(kfs), sum(k.nbytes for k in kfs))
+    assert sizes[1.5][1] <= 1.5 * 2**20 and sizes[1.5][0] < sizes[96.0][0]
+    assert lite_vo.load_profile("board").system.keyframe_memory_mb == 32.0
