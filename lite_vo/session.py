@@ -82,7 +82,7 @@ class RunEnd:
     status: str                            # ok, ok_with_losses, ok_with_skipped_frames, lost,
                                            # failed: ..., interrupted at frame N
     frames: dict                           # in, tracked, lost, dropped, skipped, reinit, ...
-    timing: dict                           # the timing.json contract (+ wall_s, warmup_s)
+    timing: dict                           # the timing.json contract (+ wall_s, cpu_s, warmup_s)
     events: list                           # [{"frame", "t", "event"}, ...]
     metric: bool                           # the map has metric scale (depth init or given poses)
     depth_accuracy_series: Any = field(default_factory=list)  # rows (dicts): a list or a records.RowRecord
@@ -251,6 +251,7 @@ class Session:
         read = 0
         status, error, exc = None, None, None
         t_wall = time.perf_counter()
+        c_wall = time.process_time()
         try:
             # depth images are decoded when a frame needs one (initialisation, the sampled depth
             # evaluation), except for RGB-D tracking, which needs every one
@@ -309,11 +310,13 @@ class Session:
             for m in vo.take_published_maps():
                 self._fan_out("on_map", m)
         wall_s = time.perf_counter() - t_wall
+        cpu_s = time.process_time() - c_wall
         frames = {k: int(v) for k, v in vo.counts.items()} | counts
         if status is None:
             status = _status(frames, events)
         timing = vo.timing()
         timing["wall_s"] = wall_s
+        timing["cpu_s"] = cpu_s       # CPU time of the whole process (all threads) over the same span
         timing["warmup_s"] = warmup_s
         end = RunEnd(status=status, frames=frames, timing=timing, events=events,
                      metric=bool(vo.metric or self.pose_source == "gt"),

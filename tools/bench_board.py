@@ -39,7 +39,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-TARGETS = {"ms_per_frame": 6.6, "cpu_ms_per_frame": 6.6, "peak_rss_mb": 250.0, "first_tracked_s": 2.0}
+TARGETS = {"ms_per_frame": 6.6, "loop_cpu_ms_per_frame": 6.6, "peak_rss_mb": 250.0, "first_tracked_s": 2.0}
 
 
 def lite_vo_command() -> list[str]:
@@ -111,6 +111,7 @@ def one_run(seq: Path, core: int | None, out: Path, init: str, mode: str, max_fr
         "cpu_ms_per_frame": (1000.0 * (cpu_total - cpu_at_first) / max(1, frames["in"] - 1)
                              if cpu_at_first is not None else None),
         "ms_per_frame": 1000.0 * timing["wall_s"] / max(1, frames["in"]),
+        "loop_cpu_ms_per_frame": (1000.0 * timing["cpu_s"] / max(1, frames["in"]) if "cpu_s" in timing else None),
         "peak_rss_mb": rusage.ru_maxrss / 1024.0,  # KiB on Linux
         "first_pose_s": first.get(1), "first_tracked_s": first.get(2),
         "process_s": total_s, "process_cpu_s": cpu_total, "cpu_at_first_pose_s": cpu_at_first, "wall_s": timing["wall_s"], "frames_in": frames["in"],
@@ -137,7 +138,8 @@ def write_markdown(path: Path, res: dict) -> None:
     runs, med = res["runs"], res["median"]
     m = res["machine"]
     rows = [("whole program per frame, wall (ms)", "ms_per_frame", 2),
-            ("whole program per frame, CPU time (ms)", "cpu_ms_per_frame", 2), ("peak RSS (MB)", "peak_rss_mb", 0),
+            ("whole program per frame, CPU time of the frame loop (ms)", "loop_cpu_ms_per_frame", 2),
+            ("peak RSS (MB)", "peak_rss_mb", 0),
             ("warm start to first tracked frame (s)", "first_tracked_s", 2)]
     L = ["# The `board` profile on one pinned core", "",
          "Issue 19, item 3: a Raspberry Pi 4 class core is about 5x slower than a core of this machine, so "
@@ -156,7 +158,8 @@ def write_markdown(path: Path, res: dict) -> None:
         met = "-" if v is None else ("yes" if v <= TARGETS[key] else "**no**")
         L.append(f"| {label} | " + " | ".join("-" if r[key] is None else f"{r[key]:.{d}f}" for r in runs)
                  + f" | **{'-' if v is None else f'{v:.{d}f}'}** | <= {TARGETS[key]:g} | {met} |")
-    for label, key, d in (("process start to first pose (frame 0, depth init) (s)", "first_pose_s", 2),
+    for label, key, d in (("CPU time after the first pose per frame, end-of-run exports included (ms)", "cpu_ms_per_frame", 2),
+                          ("process start to first pose (frame 0, depth init) (s)", "first_pose_s", 2),
                           ("whole process, wall (s)", "process_s", 1),
                           ("whole process, CPU time user+sys (s)", "process_cpu_s", 1),
                           ("CPU time until the first pose (start-up, imports, cache loads) (s)", "cpu_at_first_pose_s", 2),
@@ -170,10 +173,11 @@ def write_markdown(path: Path, res: dict) -> None:
     L += ["", f"Frames: {r0['frames_in']} in, {r0['tracked']} tracked, status `{r0['status']}` (run 1). "
           "Per frame = `wall_s` / frames of `timing.json`; peak RSS = `ru_maxrss` of the process; the start "
           "times are measured from starting the process to the first / second line of `trajectory.txt`. "
-          "On a shared machine the wall times include waiting for the core; the CPU time per frame (the "
-          "process's user+system time after the first pose, from `/proc/PID/stat` and `ru_utime`/`ru_stime`, "
-          "divided by the frames after the first) does not, so it is the better estimate of the cost on an "
-          "idle core.", ""]
+          "On a shared machine the wall times include waiting for the core; the CPU time of the frame loop "
+          "(`cpu_s` / frames of `timing.json`: the process's CPU time from the first frame to the last) does "
+          "not, so it is the better estimate of the cost on an idle core. The CPU time after the first pose "
+          "(from `/proc/PID/stat` and `ru_utime`/`ru_stime`) also counts the end-of-run exports (the "
+          "whole-scene `map.ply`, plots).", ""]
     path.write_text("\n".join(L), encoding="utf-8")
     path.with_suffix(".json").write_text(json.dumps(res, indent=2) + "\n", encoding="utf-8")
 
