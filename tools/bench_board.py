@@ -12,7 +12,8 @@ Each run is the command a user types, in a fresh process pinned to one core with
 and measures
 - cost per frame: ``wall_s / frames in`` of its ``timing.json`` (the whole program: decoding,
   rectification, tracking and mapping in one thread, as the README defines it), and the same from
-  CPU time (user+system after the first pose / frames after the first; robust to a shared machine),
+  CPU time: ``cpu_s / frames`` (the frame loop; robust to a shared machine) and, for reference, the
+  user+system time after the first pose (which also counts the end-of-run exports),
 - peak RSS: ``ru_maxrss`` of the process (``os.wait4``),
 - start to first pose / first tracked frame: from starting the process to the first / second line
   of ``trajectory.txt`` (written as the run goes; the first pose is the depth-initialised frame 0,
