@@ -90,7 +90,10 @@ def test_run_ar_gt_video_frames_and_size(egl, sequence, tmp_path, panels):
     assert summary["ground_plane"]["source"].startswith("imu")
     n_up = np.array(summary["ground_plane"]["normal_world"])
     assert np.degrees(np.arccos(n_up @ [0, 0, 1])) < 3.0               # synth world: z up
-    assert summary["world_models_built"] >= 2 and summary["world_updates"] >= 2
+    if panels:   # synchronous world (deterministic): a rebuild every world_update_every frames
+        assert summary["world_models_built"] >= 2 and summary["world_updates"] >= 2
+    else:        # asynchronous: how many builds finish within 10 frames depends on the machine's load
+        assert summary["world_models_built"] >= 1 and summary["world_updates"] >= 1
     assert (tmp_path / "mesh.obj").stat().st_size > 0
     write_summary(summary, tmp_path)
     assert json.loads((tmp_path / "summary.json").read_text())["frames_written"] == 10
