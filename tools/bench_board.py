@@ -123,6 +123,14 @@ def one_run(seq: Path, core: int | None, out: Path, init: str, mode: str, max_fr
     }
 
 
+def run_medians(runs: list[dict], skip: tuple = ()) -> dict:
+    """Per key of :func:`one_run`'s results (except ``skip``): the median over the runs that have a
+    value, None for keys that are not numbers."""
+    return {k: (statistics.median([r[k] for r in runs if r[k] is not None])
+                if any(r[k] is not None for r in runs) and isinstance(runs[0][k], (int, float)) else None)
+            for k in runs[0] if k not in skip}
+
+
 def machine() -> dict:
     cpu = platform.processor() or platform.machine()
     try:
@@ -211,9 +219,7 @@ def main(argv=None) -> int:
             print(f"run {i + 1}: {r['ms_per_frame']:.2f} ms/frame, peak RSS {r['peak_rss_mb']:.0f} MB, "
                   f"first tracked frame after {r['first_tracked_s']:.2f} s", flush=True)
             runs.append(r)
-    median = {k: (statistics.median([r[k] for r in runs if r[k] is not None])
-                  if any(r[k] is not None for r in runs) and isinstance(runs[0][k], (int, float)) else None)
-              for k in runs[0]}
+    median = run_medians(runs)
     shown, skip = [], False
     for a in sys.argv[1:] if argv is None else argv:
         if skip or a.startswith("--note"):

@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -36,7 +35,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))
 
-from bench_board import lite_vo_command, machine, one_run  # noqa: E402
+from bench_board import lite_vo_command, machine, one_run, run_medians  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 PROFILES = ("desktop", "m640_t320", "m320_t320", "phone", "m160_t160", "m160_t80", "board")
@@ -151,9 +150,7 @@ def main(argv=None) -> int:
                     runs.append(one_run(seq, 0 if args.pin_core else None, out, init, "sync", None, profile=prof))
                     if i == 0:
                         err = trajectory_error(seq, out, "se3" if init == "depth" else "sim3")
-                med = {k: (statistics.median([r[k] for r in runs if r[k] is not None])
-                           if isinstance(runs[0][k], (int, float)) and any(r[k] is not None for r in runs) else None)
-                       for k in runs[0] if k != "stages"}
+                med = run_medians(runs, skip=("stages",))
                 rows.append({"sequence": name, "profile": prof, "runs": runs, "median": med,
                              "stages": runs[0]["stages"], "error": {k: v for k, v in err.items() if k != "raw"},
                              "tracked": f"{runs[0]['tracked']}/{runs[0]['frames_in']}"})
