@@ -2,6 +2,7 @@
 ``--force``. One place for the check and its one-line messages."""
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from pathlib import Path
@@ -39,10 +40,18 @@ def check_output_file(path, force: bool) -> None:
         raise InputError(f"{path}: already exists (use --force to overwrite)")
 
 
-def write_file_atomic(path, data: str | bytes) -> None:
-    """Write ``data`` (text as UTF-8) to ``<name>.tmp`` beside ``path`` and rename it over ``path``,
-    so nobody ever reads a half-written file."""
+@contextlib.contextmanager
+def atomic_writer(path):
+    """A binary file ``<name>.tmp`` beside ``path``, renamed over ``path`` when the block ends
+    without an error, so nobody ever reads a half-written file (for outputs written in parts)."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(data.encode("utf-8") if isinstance(data, str) else data)
+    with open(tmp, "wb") as f:
+        yield f
     os.replace(tmp, path)
+
+
+def write_file_atomic(path, data: str | bytes) -> None:
+    """Write ``data`` (text as UTF-8) through :func:`atomic_writer`."""
+    with atomic_writer(path) as f:
+        f.write(data.encode("utf-8") if isinstance(data, str) else data)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .outputs import atomic_writer
 
 _PLY_TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8", "uchar": "u1",
               "uint8": "u1", "int": "<i4", "int32": "<i4", "uint": "<u4", "short": "<i2", "ushort": "<u2",
@@ -54,8 +55,7 @@ def write_ply(path: str | os.PathLike, points_xyz, idepth_var=None, colors=None,
               "comment lite_vo semi-dense map", f"element vertex {n}"]
     header += [f"property {names[t]} {name}" for name, t in fields]
     header.append("end_header")
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
+    with atomic_writer(path) as f:
         f.write(("\n".join(header) + "\n").encode("ascii"))
         for a in range(0, n, _CHUNK):
             b = min(a + _CHUNK, n)
@@ -73,7 +73,6 @@ def write_ply(path: str | os.PathLike, points_xyz, idepth_var=None, colors=None,
             else:
                 f.write("".join(" ".join(f"{v:.7g}" if isinstance(v, np.floating) else str(int(v)) for v in row) + "\n"
                                 for row in arr).encode("ascii"))
-    os.replace(tmp, path)
 
 
 def read_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
