@@ -729,7 +729,7 @@ def regularize_kernel(st, prm, o_valid):
             Vr = V[y + dy]
             Lr = L[y + dy]
             for dx in range(nd):
-                add = np.float64(inv_tab[dy * nd + dx])
+                add = inv_tab[dy * nd + dx]
                 for x in range(w):
                     dn = Dr[x + dx]
                     vn = Vr[x + dx]
