@@ -259,16 +259,40 @@ def _support(kf: Keyframe, p_world: np.ndarray, rel_tol: float, win: int) -> tup
     return seen, agree
 
 
-def scene_cloud(keyframes, max_rel_std: float = 0.1, rel_tol: float = 0.03, neighbours: int = 10,
-                min_support: int = 1, min_agree: float = 0.7, window: int = 1, voxel: float = 0.0) -> PointCloud:
+def depth_jump(idepth: np.ndarray, radius: int = 2) -> np.ndarray:
+    """Per pixel, the largest relative inverse-depth difference ``|d_q - d_p| / d_p`` to a hypothesis
+    ``q`` within ``radius`` pixels (0 where there is none; NaN where ``p`` has no hypothesis)."""
+    D = np.asarray(idepth, np.float64)
+    H, W = D.shape
+    P = np.pad(D, radius, constant_values=np.nan)
+    out = np.zeros_like(D)
+    for dv in range(2 * radius + 1):
+        for du in range(2 * radius + 1):
+            q = P[dv:dv + H, du:du + W]
+            out = np.fmax(out, np.abs(q - D) / D)     # fmax ignores the NaN of missing neighbours
+    out[~np.isfinite(D)] = np.nan
+    return out
+
+
+def scene_cloud(keyframes, max_rel_std: float = 0.5, rel_tol: float = 0.07, neighbours: int = 10,
+                min_support: int = 1, min_agree: float = 0.5, window: int = 1, max_jump: float = 0.1,
+                voxel: float = 0.0) -> PointCloud:
     """All keyframes' converged points in the world frame, coloured from their images.
 
-    Outliers are removed twice: by variance (relative depth standard deviation below ``max_rel_std``)
-    and by cross-keyframe consistency: a point is kept when at least ``min_support`` of its
-    ``neighbours`` nearest keyframes (by pose) have a hypothesis within ``window`` pixels of its
-    projection whose inverse depth agrees within ``rel_tol``, and at least ``min_agree`` of the
-    neighbours that have a hypothesis there agree (the others contradict the point). ``voxel > 0`` (world units) averages
-    the points (and colours) per voxel. Only keyframes of the newest scale are used.
+    Outliers are removed three times:
+
+    * by variance: the relative depth standard deviation is below ``max_rel_std``;
+    * at depth discontinuities: no hypothesis within 2 pixels of the point (in its keyframe) differs
+      from it by more than ``max_jump`` in relative inverse depth. Points on an occlusion boundary are
+      where the semi-dense map smears foreground into background; they were most of the far outliers
+      on ICL (``benchmarks/cloud_icl_variants.md``);
+    * by cross-keyframe consistency: a point is kept when at least ``min_support`` of its
+      ``neighbours`` nearest keyframes (by pose) have a hypothesis within ``window`` pixels of its
+      projection whose inverse depth agrees within ``rel_tol``, and at least ``min_agree`` of the
+      neighbours that have a hypothesis there agree (the others contradict the point).
+
+    ``voxel > 0`` (world units) averages the points (and colours) per voxel. Only keyframes of the
+    newest scale are used.
     """
     kfs = keyframes.current() if isinstance(keyframes, KeyframeStore) else list(keyframes)
     if kfs:
@@ -278,6 +302,9 @@ def scene_cloud(keyframes, max_rel_std: float = 0.1, rel_tol: float = 0.03, neig
     depth = float(np.median(depths)) if depths else 1.0
     for i, kf in enumerate(kfs):
         p_cam, (v, u), var = kf.points(max_rel_std)
+        if np.isfinite(max_jump) and len(u):
+            smooth = depth_jump(kf.idepth)[v, u] <= max_jump
+            p_cam, u, v, var = p_cam[smooth], u[smooth], v[smooth], var[smooth]
         if len(u) == 0:
             continue
         p_world = transform_points(kf.T_world_cam, p_cam)

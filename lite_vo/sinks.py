@@ -196,15 +196,13 @@ class RunInfoSink(OutputSink):
 
 class MapSink(OutputSink):
     """``map.ply``: the whole-scene point cloud of the VO's keyframes (world frame, coloured from the
-    images, outliers removed by variance and cross-keyframe consistency, optionally one point per
-    ``voxel``; see :func:`lite_vo.keyframes.scene_cloud` for the parameters) with each point's idepth
-    variance. Without a keyframe store (a session that has none) the last published map is written."""
+    images, outliers removed; ``cloud_params`` override the defaults of
+    :func:`lite_vo.keyframes.scene_cloud`, e.g. ``voxel``) with each point's idepth variance. Without a
+    keyframe store (a session that has none) the last published map is written."""
 
-    def __init__(self, path, voxel: float = 0.0, max_rel_std: float = 0.1, rel_tol: float = 0.03,
-                 neighbours: int = 10, min_support: int = 1, min_agree: float = 0.7) -> None:
+    def __init__(self, path, **cloud_params) -> None:
         self.path = Path(path)
-        self.params = {"voxel": float(voxel), "max_rel_std": float(max_rel_std), "rel_tol": float(rel_tol),
-                       "neighbours": int(neighbours), "min_support": int(min_support), "min_agree": float(min_agree)}
+        self.params = dict(cloud_params)
         self.last: PublishedMap | None = None
         self.store = None
         self.points = 0

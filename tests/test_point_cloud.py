@@ -5,7 +5,7 @@ import numpy as np
 
 from lite_vo.camera import PinholeIntrinsics
 from lite_vo.geometry import make_pose
-from lite_vo.keyframes import Keyframe, scene_cloud, voxel_downsample
+from lite_vo.keyframes import Keyframe, depth_jump, scene_cloud, voxel_downsample
 
 CAM = PinholeIntrinsics(50.0, 50.0, 31.5, 23.5, 64, 48)
 
@@ -39,11 +39,27 @@ def test_colours_come_from_the_right_pixels():
 
 def test_inconsistent_point_is_removed():
     kfs = [_wall_kf(0, 0.0, outlier=True), _wall_kf(1, 0.05), _wall_kf(2, 0.1)]
-    cloud = scene_cloud(kfs)
+    cloud = scene_cloud(kfs, max_jump=np.inf)                                # the consistency filter alone
     assert np.all(np.abs(cloud.points[:, 2] - 2.0) < 1e-6)
     clean = [_wall_kf(0, 0.0), _wall_kf(1, 0.05), _wall_kf(2, 0.1)]
-    assert len(scene_cloud(clean).points) == len(cloud.points) + 1         # only the outlier went
-    assert np.any(np.abs(scene_cloud(kfs, min_support=0).points[:, 2] - 1.0) < 1e-6)
+    assert len(scene_cloud(clean, max_jump=np.inf).points) == len(cloud.points) + 1   # only the outlier went
+    assert np.any(np.abs(scene_cloud(kfs, min_support=0, max_jump=np.inf).points[:, 2] - 1.0) < 1e-6)
+
+
+def test_points_at_a_depth_discontinuity_are_removed():
+    """A step from 2 m (left) to 1 m (right) at column 32: the points within 2 pixels of the step go
+    (depth_jump 1.0 > max_jump), the rest of both planes stays."""
+    d = np.full((48, 64), 0.5, np.float32)
+    d[:, 32:] = 1.0
+    var = np.full((48, 64), 1e-5, np.float32)
+    kf = Keyframe.make(0, 0.0, np.eye(4), CAM, np.full((48, 64), 100.0), d, var)
+    jump = depth_jump(kf.idepth)
+    assert np.allclose(jump[:, 30:32], 1.0) and np.allclose(jump[:, 32:34], 0.5)
+    assert np.all(jump[:, :30] == 0) and np.all(jump[:, 34:] == 0)
+    cloud = scene_cloud([kf], min_support=0)
+    u = cloud.pixel[:, 0]
+    assert len(u) == 48 * 60 and not np.any((u >= 30) & (u < 34))
+    assert len(scene_cloud([kf], min_support=0, max_jump=np.inf).points) == 48 * 64
 
 
 def test_voxel_downsample_averages():
