@@ -86,9 +86,10 @@ class ARConfig:
     spawn_v_rel: float = param(0.25, "spawn the car on the ground seen this far below the image centre (image heights)", -0.5, 0.5)
     target_v_rel: float = param(0.0, "the autopilot aims at the ground seen this far below the image centre", -0.5, 0.5)
     wander_period_s: float = param(4.0, "period of the gentle steering wander (s)", 0.1, 1000.0)
-    respawn_out_of_view_s: float = param(2.0, "respawn on seen floor in view after the car was out of view this long (s; 0: never)", 0.0, 1000.0)
+    respawn_out_of_view_s: float = param(1.5, "respawn on seen floor in view after the car was out of view this long (s; 0: never)", 0.0, 1000.0)
     spawn_clearance: float = param(0.75, "spawn only where seen floor extends this far around the car (car lengths)", 0.0, 10.0)
     respawn_hidden_s: float = param(0.2, "respawn on seen floor in view after obstacles of the world hid the car from the camera this long (s; 0: never)", 0.0, 1000.0)
+    respawn_stuck_s: float = param(1.5, "respawn on seen floor in view when the car moved less than a quarter of its length in this long (s; 0: never): wedged against real geometry", 0.0, 1000.0)
     respawn_tilt_deg: float = param(60.0, "respawn when the car is tilted more than this for a second (fell over)", 1.0, 180.0)
     view_margin: float = param(0.12, "the autopilot aims and spawns this far inside the image border (image fraction)", 0.0, 0.45)
     # --- rendering / video

@@ -14,8 +14,9 @@ times the camera height above the ground plane at the start (0.2: a 30 cm car fo
 a floor disc of ``spawn_clearance`` car lengths, not hidden behind obstacles of the field), the
 autopilot steers towards seen floor in the lower middle of the view around obstacles of the field
 (and backs up when blocked or pressed against an obstacle), and it respawns there when it fell,
-flipped, left the field, stayed out of view for ``respawn_out_of_view_s`` or hidden behind obstacles
-of the field for ``respawn_hidden_s``. It stands on the fused local floor height (see
+flipped, left the field, stayed out of view for ``respawn_out_of_view_s``, hidden behind obstacles
+of the field for ``respawn_hidden_s`` or stuck (less than a quarter of its length of progress in
+``respawn_stuck_s``, whether driving or backing up). It stands on the fused local floor height (see
 :mod:`ar_demo.heightfield`), so it stays on the floor the current camera sees when the pose drifts
 against the ground plane.
 
@@ -82,6 +83,7 @@ class ARWorld:
         self._out_of_view_s = 0.0
         self._tilted_s = 0.0
         self._hidden_s = 0.0                     # how long obstacles of the field hid the car from the camera
+        self._stuck_from = None                  # (sim time, xy) where the car last made progress
         self._inside_geometry = False
         self.spawns = 0
         self.respawn_reasons: dict[str, int] = {}
@@ -281,6 +283,7 @@ class ARWorld:
         self.spawns += 1
         self.respawn_reasons[why] = self.respawn_reasons.get(why, 0) + 1
         self._out_of_view_s = self._tilted_s = self._hidden_s = 0.0
+        self._stuck_from = None
         self._inside_geometry = False            # the new place is free (it was the old one that was not)
         return True
 
@@ -305,6 +308,17 @@ class ARWorld:
                 return pos + max(look, self.cfg.target_radius * L * 1.01) * dirv if off else goal
         return goal
 
+    def _stuck(self, xy: np.ndarray) -> bool:
+        """The car made less than a quarter of its length of progress in the last ``respawn_stuck_s``."""
+        lim = self.cfg.respawn_stuck_s
+        t = self.physics.sim_time
+        if lim <= 0:
+            return False
+        if self._stuck_from is None or np.hypot(*(xy - self._stuck_from[1])) > 0.25 * self.physics.car_length:
+            self._stuck_from = (t, np.array(xy, dtype=np.float64))
+            return False
+        return t - self._stuck_from[0] > lim
+
     def _check_respawn(self, dt: float, T: np.ndarray | None) -> None:
         ph = self.physics
         st = ph.car_state()
@@ -320,6 +334,8 @@ class ARWorld:
             reason = "inside real geometry"
         elif self._tilted_s > 1.0:
             reason = "tipped over"
+        elif self._stuck(pos[:2]):
+            reason = "stuck"
         elif T is not None:
             if self.in_view(T, self.car_position_world()):
                 self._out_of_view_s = 0.0

@@ -111,11 +111,11 @@ def test_icl_car_lives_in_the_room(tmp_path):
     deterministic; the same run as ``python tools/bench_ar_world.py`` -> benchmarks/ar_world.md).
 
     Issue-15 targets: footprint centre in view >= 70 % of the frames from spawn, on a real surface
-    >= 90 % where in view, hidden <= 5 %, tilt <= 20 deg in >= 90 %. Measured: in view 70.4 %, on a
+    >= 90 % where in view, hidden <= 5 %, tilt <= 20 deg in >= 90 %. Measured: in view 75.0 %, on a
     surface 100 %, hidden 0 %, upright 100 %. The car's path is chaotic (small changes of the VO or the
-    world updates send it elsewhere: with rebuilds every 3-7 frames instead of 5, in view 67-88 %, on a
-    surface >= 99 %, hidden <= 2 %, upright >= 95 %), so the asserts keep a margin below the targets
-    for the in-view share and tilt and hold the surface targets themselves."""
+    world updates send it elsewhere: with rebuilds every 3, 6 or 7 frames instead of 5, in view 72-100 %,
+    on a surface >= 95 %, hidden <= 4.2 %, upright >= 94.9 %; every 4 frames, in view 64.3 %), so the
+    asserts keep a margin below the targets for the in-view share and hold the others themselves."""
     seq = shared_sequence("icl_livingroom_211")
     from ar_demo.evaluate import evaluate_ar_run
     from ar_demo.render import create_context
@@ -131,3 +131,33 @@ def test_icl_car_lives_in_the_room(tmp_path):
     assert r["on_surface_in_view"] >= 0.90
     assert r["hidden_in_view"] <= 0.05
     assert r["upright_20deg"] >= 0.90
+
+
+@pytest.mark.parametrize("stuck_s", [1.0, 0.0])
+def test_a_car_that_cannot_move_respawns_as_stuck(stuck_s):
+    """With the motors off (drive_speed 0) the car makes no progress: after respawn_stuck_s it
+    respawns on seen floor in view (reason "stuck"); with respawn_stuck_s = 0 it never does."""
+    from types import SimpleNamespace
+
+    from ar_demo.world import ARWorld
+    cfg = ARConfig(async_world=False, drive_speed=0.0, respawn_stuck_s=stuck_s)
+    w = ARWorld(cfg, CAM, metric=True)
+    kf = _floor_keyframe(0, [2.0, 0.0, 0.0])
+    published = SimpleNamespace(frame_index=0, timestamp=0.0, idepth=kf.idepth, idepth_var=kf.idepth_var,
+                                camera=kf.camera, T_world_cam=kf.T_world_cam)
+    w.gravity.update(np.array([[0.0, 0.0, 9.81]]), np.eye(3), np.array([0.0]))
+    assert w.start(published, [kf])
+    try:
+        spawns = w.spawns
+        for _ in range(27):                                # 0.9 s: not stuck long enough yet
+            w.step(1 / 30, kf.T_world_cam)
+        assert w.spawns == spawns
+        for _ in range(33):                                # 2 s in all
+            w.step(1 / 30, kf.T_world_cam)
+        assert w.in_view(kf.T_world_cam, w.car_position_world())
+        if stuck_s > 0:
+            assert w.respawn_reasons.get("stuck", 0) >= 1 and w.spawns > spawns
+        else:
+            assert "stuck" not in w.respawn_reasons and w.spawns == spawns
+    finally:
+        w.close()
