@@ -97,6 +97,7 @@ class ARConfig:
     panels: bool = param(False, "add side panels: semi-dense depth (Fig. 5.3) and collision mesh (Fig. 5.1)")
     panel_view_elevation_deg: float = param(35.0, "mesh panel: elevation of the virtual viewpoint above the camera", -89.0, 89.0)
     panel_view_azimuth_deg: float = param(30.0, "mesh panel: rotation of the viewpoint about the up axis", -180.0, 180.0)
+    world_thread: bool = param(True, "run the AR world (world hand-over to pybullet, simulation, autopilot) in its own thread: the tracking thread only queues the frame; needs render_thread")
     render_thread: bool = param(True, "render and encode the video in its own thread (parallel to tracking, Fig. 5.7)")
     render_queue: int = param(4, "frames waiting for the render thread before the caller blocks (none are dropped)", 1, 1000)
     render_ambient: float = param(0.35, "ambient share of the car's lighting (rest: one directional light from above)", 0.0, 1.0)

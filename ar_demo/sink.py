@@ -7,11 +7,20 @@ an immutable :class:`~ar_demo.video.RenderJob` to the :class:`~ar_demo.video.ARV
 thread draws it over the full-resolution rectified camera image, colour when the source is colour).
 ``on_finish`` closes everything and fills :attr:`ARSink.summary`.
 
-All methods run on the session's thread (the world-model worker and the render thread own only
-what they are handed).
+Threads: the session's thread calls the sink's methods. With ``world_thread`` (the default) they only
+queue what the frame needs (the event, the newest map, a snapshot of the keyframe list) for the
+*world thread*, which owns the :class:`~ar_demo.world.ARWorld` and pybullet and handles the frames in
+order: handing a new world to pybullet (tens of ms) and stepping the simulation no longer stall
+tracking. The queue is bounded (``render_queue``): a world thread that falls behind makes the caller
+wait, no frame is dropped. An error in the world thread is raised on the session's thread at the next
+call. Without ``world_thread`` (or without ``render_thread``, or with a renderer given: the GL context
+then belongs to the caller's thread) everything runs on the caller's thread. The world-model worker and the
+render thread own only what they are handed.
 """
 from __future__ import annotations
 
+import queue
+import threading
 import time
 from pathlib import Path
 
@@ -57,7 +66,10 @@ class ARSink(OutputSink):
         self._first_map_ts = None
         self._prev_ts = None
         self._frames = 0
-        self.times = {"simulation": [], "frame": []}
+        self.times = {"simulation": [], "frame": [], "world_frame": []}
+        self._queue: queue.Queue | None = None
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
         self.car_path: list[np.ndarray] = []
         self.summary: dict = {}
 
@@ -79,20 +91,70 @@ class ARSink(OutputSink):
                               occluder_offset=(1.0 if cfg.occluder_offset > 0 else 0.0, cfg.occluder_offset))
         self.video = ARVideo(self.out_video, self.fps, FrameComposer(cfg, info.camera), make_renderer,
                              threaded=cfg.render_thread, queue_size=cfg.render_queue, renderer=self._renderer)
+        if cfg.world_thread and cfg.render_thread and self._renderer is None:
+            # (without the render thread the GL context belongs to this thread, so the world stays here too)
+            self._queue = queue.Queue(maxsize=cfg.render_queue)
+            self._thread = threading.Thread(target=self._world_loop, name="ar-world", daemon=True)
+            self._thread.start()
 
     def on_map(self, published: PublishedMap) -> None:
         self._map = published
         self._map_seq += 1
 
     def on_corrections(self, corrections: dict) -> None:
-        # the two-view bootstrap replaced the map and earlier poses: a monocular world built on the
-        # old map has another scale, so it starts over on the new one
-        if self.world.started and not self.metric:
-            self.world.reset("the VO re-estimated its map and earlier poses")
-            self._first_map_ts = None
+        self._post(("corrections",))
 
     def on_frame(self, event: FrameEvent) -> None:
         t_frame = time.perf_counter()
+        self._post(("frame", event, self._map, self._map_seq, self._keyframes()))
+        self.times["frame"].append((time.perf_counter() - t_frame) * 1e3)
+
+    def flush(self) -> None:
+        """Wait until the world thread has handled every queued frame (raises its error, if any)."""
+        if self._queue is not None:
+            self._queue.join()
+        self._raise_world_error()
+
+    # ------------------------------------------------------------------ the world thread
+    def _post(self, msg: tuple) -> None:
+        if self._queue is None:
+            self._handle(msg)
+            return
+        self._raise_world_error()
+        self._queue.put(msg)
+
+    def _raise_world_error(self) -> None:
+        if self._error is not None:
+            err, self._error = self._error, None
+            raise RuntimeError(f"AR world thread: {err}") from err
+
+    def _world_loop(self) -> None:
+        failed = False
+        while True:
+            msg = self._queue.get()
+            try:
+                if msg is None:
+                    return
+                if not failed:                   # after an error: keep draining, so the caller never blocks
+                    self._handle(msg)
+            except BaseException as err:         # noqa: BLE001 - handed to the session's thread
+                self._error, failed = err, True
+            finally:
+                self._queue.task_done()
+
+    def _handle(self, msg: tuple) -> None:
+        if msg[0] == "corrections":
+            # the two-view bootstrap replaced the map and earlier poses: a monocular world built on the
+            # old map has another scale, so it starts over on the new one
+            if self.world.started and not self.metric:
+                self.world.reset("the VO re-estimated its map and earlier poses")
+                self._first_map_ts = None
+            return
+        t_frame = time.perf_counter()
+        self._world_frame(*msg[1:])
+        self.times["world_frame"].append((time.perf_counter() - t_frame) * 1e3)
+
+    def _world_frame(self, event: FrameEvent, the_map: PublishedMap | None, map_seq: int, keyframes: list) -> None:
         result = event.result
         ts = float(result.timestamp)
         world = self.world
@@ -106,21 +168,20 @@ class ARSink(OutputSink):
         T = None if result.T_world_cam is None or result.lost else np.asarray(result.T_world_cam)
         if T is not None:
             world.feed_imu(ts, T)
-        the_map = self._map
         if not world.started and T is not None and the_map is not None:
             if self._first_map_ts is None:
                 self._first_map_ts = ts
             wait = self.cfg.start_after_s if self.metric else max(self.cfg.start_after_s,
                                                                    self.cfg.start_after_monocular_s)
-            if ts - self._first_map_ts >= wait and world.start(the_map, self._keyframes()):
-                self._submitted_seq = self._map_seq
+            if ts - self._first_map_ts >= wait and world.start(the_map, keyframes):
+                self._submitted_seq = map_seq
         dt = 0.0 if self._prev_ts is None else max(0.0, ts - self._prev_ts)
         self._prev_ts = ts
         if world.started:
             if (self._frames % self.cfg.world_update_every == 0 and the_map is not None
-                    and self._map_seq != self._submitted_seq):
-                world.submit(the_map, self._keyframes())
-                self._submitted_seq = self._map_seq
+                    and map_seq != self._submitted_seq):
+                world.submit(the_map, keyframes)
+                self._submitted_seq = map_seq
             world.swap_in()
             t0 = time.perf_counter()
             world.step(dt, T)
@@ -136,9 +197,21 @@ class ARSink(OutputSink):
                 self._show(result.index, ts, T_car)
         self.video.put(self._job(event, T, the_map))
         self._frames += 1
-        self.times["frame"].append((time.perf_counter() - t_frame) * 1e3)
 
     def on_finish(self, end: RunEnd) -> None:
+        error = None
+        if self._thread is not None:             # let the world thread handle what is queued, then stop it
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = self._queue = None
+            error, self._error = self._error, None
+        try:
+            self._finish()
+        finally:
+            if error is not None:
+                raise RuntimeError(f"AR world thread: {error}") from error
+
+    def _finish(self) -> None:
         world = self.world
         if self._car_file is not None:
             self._car_file.close()
@@ -209,7 +282,7 @@ class ARSink(OutputSink):
         physics = world.physics
         ap = physics.autopilot if physics is not None else None
         times = {"world_model": world.build_ms, "simulation": self.times["simulation"],
-                 "render": self.video.render_ms, "frame": self.times["frame"]}
+                 "render": self.video.render_ms, "frame": self.times["frame"], "world_frame": self.times["world_frame"]}
         return {
             "video": str(self.out_video),
             "frames_written": self.video.frames,

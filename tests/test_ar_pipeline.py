@@ -166,6 +166,7 @@ def test_sink_resets_world_on_monocular_reinit(egl, tmp_path):
         sink.on_map(PublishedMap(i, i * 0.1, T, intr, image, np.nan_to_num(idepth), var, valid))
         sink.on_frame(FrameEvent(FrameResult(i, i * 0.1, T, False, quality, event=event), image))
         if i == 2:
+            sink.flush()                                              # the world thread caught up
             assert sink.world.started and sink.metric is False
             assert sink.world.ground.source == "ransac"               # no accelerometer given
     sink.on_frame(FrameEvent(FrameResult(6, 0.6, None, True, {}, event="lost"), image))
@@ -219,3 +220,79 @@ def test_car_txt_agrees_with_the_rendered_car(egl, sequence, tmp_path):
         checked += 1
     seq.close()
     assert checked >= N // 2, f"only {checked} frames with the car in view"
+
+
+def _hand_fed_sink(tmp_path, **cfg):
+    """An ARSink with a started world fed by hand (a box on a floor seen from 1 m)."""
+    import lite_vo
+    from ar_demo.sink import ARSink
+    from lite_vo.camera import PinholeIntrinsics
+    from lite_vo.session import FrameEvent, PublishedMap, SessionInfo
+    from lite_vo.system import FrameResult
+    from naive_ar import idepth_from_depth, look_at, raycast_depth
+
+    intr = PinholeIntrinsics(120.0, 120.0, 79.5, 59.5, 160, 120)
+    T = look_at([0.0, 0.0, 1.0], [2.0, 0.0, 0.0])
+    depth, _ = raycast_depth(T, intr.K, 160, 120, boxes=[(1.5, -0.3, 0, 1.9, 0.3, 0.3)])
+    idepth = idepth_from_depth(depth)
+    sink = ARSink(_cfg(start_after_monocular_s=0.0, ground_min_support=50, **cfg), tmp_path / "s.mp4", fps=10,
+                  metric=True)
+    sink.on_start(SessionInfo("hand", "hand", 5, lite_vo.load_profile("phone"), "phone", intr, intr))
+    image = np.full((120, 160), 100.0, np.float32)
+
+    def feed(i):
+        sink.on_map(PublishedMap(i, i * 0.1, T, intr, image, np.nan_to_num(idepth), np.full(idepth.shape, 1e-4),
+                                 np.isfinite(idepth)))
+        sink.on_frame(FrameEvent(FrameResult(i, i * 0.1, T, False, {}, event="init" if i == 0 else ""), image))
+    return sink, feed
+
+
+def test_world_runs_in_its_own_thread_and_its_errors_reach_the_caller(egl, tmp_path, monkeypatch):
+    """The AR world (pybullet hand-over, simulation) runs in the "ar-world" thread, not the caller's;
+    an error there is raised on the caller's thread (at on_finish, naming the world thread) and the
+    video is still closed."""
+    import threading
+
+    from ar_demo.world import ARWorld
+    from lite_vo.session import RunEnd
+    threads = set()
+    step = ARWorld.step
+
+    def spy(self, dt, T):
+        threads.add(threading.current_thread().name)
+        return step(self, dt, T)
+    monkeypatch.setattr(ARWorld, "step", spy)
+    sink, feed = _hand_fed_sink(tmp_path)
+    for i in range(4):
+        feed(i)
+    sink.flush()
+    assert sink.world.started and threads == {"ar-world"}
+    assert len(sink.times["frame"]) == 4 and len(sink.times["world_frame"]) == 4
+
+    def boom(self, dt, T):
+        raise ValueError("simulated failure")
+    monkeypatch.setattr(ARWorld, "step", boom)
+    feed(4)
+    with pytest.raises(RuntimeError, match="AR world thread: simulated failure"):
+        sink.on_finish(RunEnd("ok", {}, {}, [], False))
+    assert read_video_info(tmp_path / "s.mp4")[0] == 4          # the frames before the error were written
+
+
+def test_world_thread_off_runs_on_the_callers_thread(egl, tmp_path, monkeypatch):
+    import threading
+
+    from ar_demo.world import ARWorld
+    from lite_vo.session import RunEnd
+    threads = set()
+    step = ARWorld.step
+
+    def spy(self, dt, T):
+        threads.add(threading.current_thread().name)
+        return step(self, dt, T)
+    monkeypatch.setattr(ARWorld, "step", spy)
+    sink, feed = _hand_fed_sink(tmp_path, world_thread=False)
+    for i in range(3):
+        feed(i)
+    assert sink.world.started and threads == {threading.current_thread().name}
+    sink.on_finish(RunEnd("ok", {}, {}, [], False))
+    assert read_video_info(tmp_path / "s.mp4")[0] == 3

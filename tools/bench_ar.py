@@ -99,9 +99,10 @@ def main(argv=None) -> int:
              "Per frame, in ms. *world model*: one rebuild (reduce + in-paint eq. 5.6 + mesh), run in the worker "
              "thread every `world_update_every` frames (Fig. 5.7), so it does not add to the frame time; *simulation*: "
              "pybullet steps for one frame interval + autopilot; *render*: AR view (+ panels) incl. read-back, in the "
-             "render thread; *frame*: what the sink costs the calling (tracking) thread per frame: IMU, world-model "
-             "hand-over, simulation, snapshot for the render thread (rendering and video encoding run in parallel; "
-             "the VO itself is not included). In the VO run, "
+             "render thread; *world frame*: one frame in the AR world thread (`world_thread`): IMU, world-model "
+             "hand-over to pybullet, simulation, snapshot for the render thread; *frame*: what the sink costs the "
+             "calling (tracking) thread per frame: queueing the frame for the world thread (world, rendering and "
+             "video encoding run in parallel; the VO itself is not included). In the VO run, "
              "frames where tracking is lost show only the camera image (no car), which lowers the render times.", ""]
     for name, s in runs.items():
         t = s["timing_ms"]
@@ -109,7 +110,7 @@ def main(argv=None) -> int:
                   f"video {s['video_size']}, {s['frames_written']} frames, {s['frames_with_pose']} with a pose, "
                   f"world models {s['world_models_built']}, wall {s['wall_s']:.1f} s", "",
                   "| stage | median | mean | p95 | n |", "|---|---|---|---|---|"]
-        for k in ("world_model", "simulation", "render", "frame"):
+        for k in ("world_model", "simulation", "world_frame", "render", "frame"):
             lines.append(_row(k, t[k]))
         lines.append("")
     lines += ["## World-model build in isolation (320x240 semi-dense map from GT depth)", "",
