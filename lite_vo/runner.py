@@ -34,14 +34,15 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
                  depth_source: str = "filter", pose_source: str = "estimate", max_frames: int | None = None,
                  start_frame: int = 0, quiet: bool = True, sinks=(), profile_name: str | None = None,
                  max_bad_frames: int = 10, calib=None, kitti: bool = False, plot: bool = False,
-                 photometric=None) -> RunResult:
+                 photometric=None, map_voxel: float = 0.0) -> RunResult:
     """Run the visual odometry over ``sequence`` (a path, camera index or opened sequence).
 
     Writes the contract files into ``out_dir`` (when given) as the run goes; ``sinks`` are further
     :class:`~lite_vo.session.OutputSink` objects. ``pose_source="gt"`` takes the poses from the
     ground truth (mapping only); ``depth_source="images"`` tracks against the depth images
     (tracking only). ``kitti``: also ``trajectory_kitti.txt`` (+ ``times.txt``); ``plot``: also
-    ``trajectory.png`` (against the ground truth when the sequence has it). Ctrl-C, SIGTERM and errors still finish the files (status ``interrupted at
+    ``trajectory.png`` (against the ground truth when the sequence has it); ``map_voxel > 0``: ``map.ply``
+    with one point per voxel of that size. Ctrl-C, SIGTERM and errors still finish the files (status ``interrupted at
     frame N`` or ``failed: ...``) and are then re-raised.
     """
     if plot:
@@ -56,7 +57,7 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
         out = prepare_output_dir(Path(out_dir), force, clean=RUN_OUTPUTS)
         run_info = RunInfoSink(out)
         trajectory = TrajectorySink(out / "trajectory.txt")
-        own = [trajectory, run_info, MapSink(out / "map.ply")]
+        own = [trajectory, run_info, MapSink(out / "map.ply", voxel=map_voxel)]
         if kitti or plot:
             own.append(TrajectoryExportSink(trajectory, out / "trajectory_kitti.txt" if kitti else None,
                                             out / "trajectory.png" if plot else None,

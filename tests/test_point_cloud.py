@@ -84,3 +84,22 @@ def test_map_ply_is_the_coloured_whole_scene_and_trimesh_reads_it(synth_small, t
     assert "red" in ply and len(ply["x"]) > 1000
     pc = trimesh.load(tmp_path / "out" / "map.ply")
     assert len(pc.vertices) == len(ply["x"])
+
+
+def test_map_voxel_option_thins_map_ply(synth_small, tmp_path, capsys):
+    """`lite-vo run --map-voxel S`: map.ply holds one point per S-sized voxel (fewer points, no two in
+    one voxel); a negative size is one error line naming the option."""
+    from lite_vo.cli.main import main
+    from lite_vo.io import read_ply
+    args = ["run", str(synth_small), "--poses", "gt", "--quiet"]
+    assert main(args + ["--out", str(tmp_path / "all")]) == 0
+    assert main(args + ["--out", str(tmp_path / "vox"), "--map-voxel", "0.05"]) == 0
+    full, vox = read_ply(tmp_path / "all" / "map.ply"), read_ply(tmp_path / "vox" / "map.ply")
+    xyz = np.stack([vox["x"], vox["y"], vox["z"]], axis=1).astype(np.float64)
+    assert 0 < len(xyz) < len(full["x"]) / 3
+    # points are voxel means: each lies in its own voxel, so no two share one
+    assert len(np.unique(np.floor(xyz / 0.05).astype(np.int64), axis=0)) == len(xyz)
+    capsys.readouterr()
+    assert main(args + ["--out", str(tmp_path / "bad"), "--map-voxel", "-1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--map-voxel" in err[0]

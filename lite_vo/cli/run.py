@@ -39,6 +39,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="kitti: also write trajectory_kitti.txt (+ times.txt) for KITTI tables (trajectory.txt stays TUM)")
     p.add_argument("--plot", action="store_true",
                    help="also draw trajectory.png (against the ground truth when the sequence has one; needs matplotlib)")
+    p.add_argument("--map-voxel", type=float, default=0.0, metavar="SIZE",
+                   help="map.ply with one point per SIZE-sized voxel (world units: metres when the run is metric; "
+                        "the mean position and colour); default 0: every point")
     add_viewer_args(p)
     p.add_argument("--max-bad-frames", type=int, default=10,
                    help="unreadable frames in a row that are skipped before the run stops with an error (default 10)")
@@ -62,6 +65,8 @@ def run(args) -> int:
     config = config_from_args(args, extra=overrides)
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError(f"--max-frames must be positive, got {args.max_frames}")
+    if not args.map_voxel >= 0:
+        raise InputError(f"--map-voxel must be 0 (off) or a positive size, got {args.map_voxel}")
     sinks = viewer_sinks(args)
     source = int(args.sequence) if args.sequence.isdigit() else args.sequence
     seq = open_sequence(source, calib=args.calib, topic=args.topic)
@@ -69,7 +74,8 @@ def run(args) -> int:
     res = run_sequence(seq, config, out, force=args.force, depth_source=args.depth, pose_source=args.poses,
                        max_frames=args.max_frames, start_frame=args.start_frame, quiet=args.quiet,
                        profile_name=args.profile, max_bad_frames=args.max_bad_frames,
-                       kitti=args.format == "kitti", plot=args.plot, photometric=args.photometric, sinks=sinks)
+                       kitti=args.format == "kitti", plot=args.plot, photometric=args.photometric, sinks=sinks,
+                       map_voxel=args.map_voxel)
     c = res.info["frames"]
     skipped = f", {c['skipped']} unreadable skipped" if c.get("skipped") else ""
     msg = (f"{seq.name}: {res.status}; {c['tracked']} of {c['in']} frames tracked, {c['lost']} lost, "
