@@ -184,7 +184,9 @@ def child(what: str, seq: str, frames: int, checkpoints, trace: bool, workdir: P
         from lite_vo.cli.main import main
         _hook_sessions(probe)
         rc = main(["ar", seq, "--out", str(workdir / "ar.mp4"), "--force", "--quiet", "--max-frames", str(frames),
-                   "--mode", "sync", "--profile", "phone", "--trajectory", str(workdir / "ar_traj.txt")])
+                   "--mode", "sync", "--profile", "phone", "--trajectory", str(workdir / "ar_traj.txt")]
+                  + [a for kv in filter(None, os.environ.get("BENCH_MEMORY_AR_SET", "").split(";"))
+                     for a in ("--ar-set", kv)])
         if rc != 0:
             raise SystemExit(f"lite-vo ar exited with {rc}")
     elif what == "session":
@@ -336,6 +338,8 @@ def main(argv=None) -> int:
     p.add_argument("--name", default="memory", help="report name: <out-dir>/<name>.md and .json")
     p.add_argument("--note", default="", help="a line for the report (e.g. what changed)")
     p.add_argument("--env", action="append", default=[], metavar="NAME=VALUE", help="environment of the children")
+    p.add_argument("--ar-set", action="append", default=[], metavar="KEY=VALUE",
+                   help="AR settings for the ar child (e.g. world_thread=false)")
     p.add_argument("--knob", action="append", default=[], metavar="NAME=INT",
                    help="set lite_vo.session.NAME (e.g. TRIM_EVERY) in the children: what each fix does")
     p.add_argument("--code", default=None, help="run the children on the lite_vo/ar_demo packages in this folder "
@@ -385,6 +389,8 @@ def main(argv=None) -> int:
 
     whats = [w.strip() for w in args.what.split(",") if w.strip()]
     env_extra = dict(e.split("=", 1) for e in args.env)
+    if args.ar_set:
+        env_extra["BENCH_MEMORY_AR_SET"] = ";".join(args.ar_set)
     results = []
     with tempfile.TemporaryDirectory(prefix="bench_memory_seq_") as tmp:
         seq = write_pingpong(args.sequence, Path(tmp) / "icl_pingpong", max(checkpoints))
