@@ -141,20 +141,25 @@ def test_cli_ar_without_the_extra_says_how_to_install(monkeypatch, tmp_path, cap
     assert "pip install 'lite-vo[ar]'" in capsys.readouterr().err
 
 
+def _box_scene():
+    """A 160x120 camera 1 m above the floor looking at a box: (intrinsics, T_world_cam, inverse depth)."""
+    from lite_vo.camera import PinholeIntrinsics
+    from naive_ar import idepth_from_depth, look_at, raycast_depth
+    intr = PinholeIntrinsics(120.0, 120.0, 79.5, 59.5, 160, 120)
+    T = look_at([0.0, 0.0, 1.0], [2.0, 0.0, 0.0])
+    depth, _ = raycast_depth(T, intr.K, 160, 120, boxes=[(1.5, -0.3, 0, 1.9, 0.3, 0.3)])
+    return intr, T, idepth_from_depth(depth)
+
+
 def test_sink_resets_world_on_monocular_reinit(egl, tmp_path):
     """ARSink fed by hand (as the session would): starts the world, and a monocular re-initialisation
     (new scale) restarts it; a lost frame writes the camera image only."""
     import lite_vo
     from ar_demo.sink import ARSink
-    from lite_vo.camera import PinholeIntrinsics
     from lite_vo.session import FrameEvent, PublishedMap, RunEnd, SessionInfo
     from lite_vo.system import FrameResult
-    from naive_ar import idepth_from_depth, look_at, raycast_depth
 
-    intr = PinholeIntrinsics(120.0, 120.0, 79.5, 59.5, 160, 120)
-    T = look_at([0.0, 0.0, 1.0], [2.0, 0.0, 0.0])
-    depth, _ = raycast_depth(T, intr.K, 160, 120, boxes=[(1.5, -0.3, 0, 1.9, 0.3, 0.3)])
-    idepth = idepth_from_depth(depth)
+    intr, T, idepth = _box_scene()
     valid = np.isfinite(idepth)
     var = np.full(idepth.shape, 1e-4)
     sink = ARSink(_cfg(start_after_monocular_s=0.0, ground_min_support=50), tmp_path / "s.mp4", fps=10)
@@ -226,15 +231,10 @@ def _hand_fed_sink(tmp_path, **cfg):
     """An ARSink with a started world fed by hand (a box on a floor seen from 1 m)."""
     import lite_vo
     from ar_demo.sink import ARSink
-    from lite_vo.camera import PinholeIntrinsics
     from lite_vo.session import FrameEvent, PublishedMap, SessionInfo
     from lite_vo.system import FrameResult
-    from naive_ar import idepth_from_depth, look_at, raycast_depth
 
-    intr = PinholeIntrinsics(120.0, 120.0, 79.5, 59.5, 160, 120)
-    T = look_at([0.0, 0.0, 1.0], [2.0, 0.0, 0.0])
-    depth, _ = raycast_depth(T, intr.K, 160, 120, boxes=[(1.5, -0.3, 0, 1.9, 0.3, 0.3)])
-    idepth = idepth_from_depth(depth)
+    intr, T, idepth = _box_scene()
     sink = ARSink(_cfg(start_after_monocular_s=0.0, ground_min_support=50, **cfg), tmp_path / "s.mp4", fps=10,
                   metric=True)
     sink.on_start(SessionInfo("hand", "hand", 5, lite_vo.load_profile("phone"), "phone", intr, intr))
@@ -247,14 +247,11 @@ def _hand_fed_sink(tmp_path, **cfg):
     return sink, feed
 
 
-def test_world_runs_in_its_own_thread_and_its_errors_reach_the_caller(egl, tmp_path, monkeypatch):
-    """The AR world (pybullet hand-over, simulation) runs in the "ar-world" thread, not the caller's;
-    an error there is raised on the caller's thread (at on_finish, naming the world thread) and the
-    video is still closed."""
+def _world_step_threads(monkeypatch) -> set:
+    """The names of the threads that call ``ARWorld.step`` from now on (filled as they do)."""
     import threading
 
     from ar_demo.world import ARWorld
-    from lite_vo.session import RunEnd
     threads = set()
     step = ARWorld.step
 
@@ -262,6 +259,16 @@ def test_world_runs_in_its_own_thread_and_its_errors_reach_the_caller(egl, tmp_p
         threads.add(threading.current_thread().name)
         return step(self, dt, T)
     monkeypatch.setattr(ARWorld, "step", spy)
+    return threads
+
+
+def test_world_runs_in_its_own_thread_and_its_errors_reach_the_caller(egl, tmp_path, monkeypatch):
+    """The AR world (pybullet hand-over, simulation) runs in the "ar-world" thread, not the caller's;
+    an error there is raised on the caller's thread (at on_finish, naming the world thread) and the
+    video is still closed."""
+    from ar_demo.world import ARWorld
+    from lite_vo.session import RunEnd
+    threads = _world_step_threads(monkeypatch)
     sink, feed = _hand_fed_sink(tmp_path)
     for i in range(4):
         feed(i)
@@ -281,15 +288,8 @@ def test_world_runs_in_its_own_thread_and_its_errors_reach_the_caller(egl, tmp_p
 def test_world_thread_off_runs_on_the_callers_thread(egl, tmp_path, monkeypatch):
     import threading
 
-    from ar_demo.world import ARWorld
     from lite_vo.session import RunEnd
-    threads = set()
-    step = ARWorld.step
-
-    def spy(self, dt, T):
-        threads.add(threading.current_thread().name)
-        return step(self, dt, T)
-    monkeypatch.setattr(ARWorld, "step", spy)
+    threads = _world_step_threads(monkeypatch)
     sink, feed = _hand_fed_sink(tmp_path, world_thread=False)
     for i in range(3):
         feed(i)
