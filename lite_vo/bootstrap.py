@@ -39,6 +39,56 @@ class Bootstrap:
     T_j_init: dict = field(default_factory=dict)  # frame index -> 4x4 (None when PnP failed)
     frames: list = field(default_factory=list)    # (index, timestamp, image float32) to replay
     reason: str = ""
+    affine_j_init: dict = field(default_factory=dict)  # frame index -> (a, b): I_j = a * I_init + b
+
+
+LCN_SIGMA = 4.0     # px at 320 width: window of the local normalisation the corners are followed in
+LCN_EPS = 4.0       # grey levels added to the local contrast (flat and clipped areas stay flat)
+LCN_GAIN_CHANGE = 0.05  # the normalised images are used once the gain has changed by more than this
+
+
+def patch_affine(img0: np.ndarray, img1: np.ndarray, p0: np.ndarray, p1: np.ndarray, saturation: float = 250.0,
+                 radius: int = 3, min_points: int = 20, min_spread: float = 4.0):
+    """Brightness change ``I_1 = a * I_0 + b`` between two images from corresponding points.
+
+    Compares the means of the ``(2 radius + 1)^2`` patches around each pair of points (a mean hardly
+    moves with a small tracking error, and an affine change of the pixels is the same change of
+    their mean); patches that touch a clipped pixel (at or above ``saturation``, or 0) are left out;
+    the line is fitted by least squares, twice more without the points off by more than three robust
+    standard deviations (vignetting and occlusions). ``None`` when fewer than ``min_points`` patches
+    remain or their means spread by less than ``min_spread`` grey levels (no leverage for a gain).
+    """
+    import cv2
+    k = 2 * radius + 1
+    ker = np.ones((k, k), np.uint8)
+    vals = []
+    for img, p in ((img0, p0), (img1, p1)):
+        img = np.asarray(img, np.float32)
+        h, w = img.shape
+        u = np.rint(p[:, 0]).astype(np.int64)
+        v = np.rint(p[:, 1]).astype(np.int64)
+        inside = (u >= radius) & (u < w - radius) & (v >= radius) & (v < h - radius)
+        u, v = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
+        mean = cv2.blur(img, (k, k))[v, u]
+        hi = cv2.dilate(img, ker)[v, u]
+        lo = cv2.erode(img, ker)[v, u]
+        vals.append((mean, inside & (hi < saturation) & (lo > 0)))
+    (x, ok0), (y, ok1) = vals
+    ok = ok0 & ok1
+    x, y = x[ok].astype(np.float64), y[ok].astype(np.float64)
+    if len(x) < min_points or float(np.std(x)) < min_spread:
+        return None
+    keep = np.ones(len(x), bool)
+    for _ in range(3):
+        if keep.sum() < min_points:
+            return None
+        a, b = np.polyfit(x[keep], y[keep], 1)
+        r = y - (a * x + b)
+        mad = float(np.median(np.abs(r[keep] - np.median(r[keep])))) * 1.4826
+        keep = np.abs(r) <= 3.0 * max(mad, 0.5)
+    if not (np.isfinite(a) and np.isfinite(b)) or a <= 0:
+        return None
+    return float(a), float(b)
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -57,28 +107,39 @@ class InitVerifier:
     """
 
     def __init__(self, config, intrinsics: PinholeIntrinsics, image0: np.ndarray, T_world_init: np.ndarray,
-                 index0: int, timestamp0: float) -> None:
+                 index0: int, timestamp0: float, saturation: float = 250.0) -> None:
         import cv2
         self._cv2 = cv2
         self.cfg = config
+        self.saturation = float(saturation)
+        self.affine: dict[int, tuple[float, float]] = {}
+        self.gain = 1.0                            # of the last frame relative to the init frame
         self.K = intrinsics.K
         self.scale_px = intrinsics.width / 320.0
-        img = self._u8(image0)
+        self.prev = self._lk_images(image0)
+        img = self.prev[0]
         pts = cv2.goodFeaturesToTrack(img, maxCorners=int(config.verify_features), qualityLevel=0.01,
                                       minDistance=max(3, int(7 * self.scale_px)))
         self.p0 = np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
         self.pts = self.p0.copy()
         self.alive = np.ones(len(self.p0), bool)
-        self.prev = img
         self.T_world_init = T_world_init.copy()
         self.index0, self.t0 = index0, timestamp0
         self.tracks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # index -> (pts, alive)
         self.frames = [(index0, timestamp0, np.asarray(image0, np.float32))]
         self.done = len(self.p0) < config.verify_min_inliers
 
-    @staticmethod
-    def _u8(image: np.ndarray) -> np.ndarray:
-        return np.clip(image, 0, 255).astype(np.uint8)
+    def _lk_images(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """8-bit grey (for the corners) and locally normalised (zero mean and unit contrast in a
+        Gaussian window of ``LCN_SIGMA`` px; for Lucas-Kanade): LK assumes constant brightness, and
+        an auto-exposure camera (or vignetting) changes it; the normalised image stays the same under
+        an affine brightness change, so the corners do not drift and bias the two-view poses."""
+        cv2 = self._cv2
+        img = np.asarray(image, np.float32)
+        m = cv2.GaussianBlur(img, (0, 0), LCN_SIGMA * self.scale_px)
+        v = cv2.GaussianBlur(img * img, (0, 0), LCN_SIGMA * self.scale_px) - m * m
+        z = (img - m) / (np.sqrt(np.maximum(v, 0.0)) + LCN_EPS)
+        return np.clip(img, 0, 255).astype(np.uint8), np.clip(128.0 + 40.0 * z, 0, 255).astype(np.uint8)
 
     def add(self, index: int, timestamp: float, image: np.ndarray, T_world_cam: np.ndarray | None):
         if self.done:
@@ -88,15 +149,22 @@ class InitVerifier:
             self.done = True
             log.info("init verification: no decision within %.1f s, keeping the random initialisation", cfg.verify_max_s)
             return "give_up"
-        img = self._u8(image)
-        nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, img, self.pts.reshape(-1, 1, 2), None,
+        # the plain images while the gain stays near the init frame's (the most accurate tracks),
+        # the normalised ones once the exposure has moved (as measured on the last frame)
+        cur = self._lk_images(image)
+        k = 1 if abs(self.gain - 1.0) > LCN_GAIN_CHANGE else 0
+        nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev[k], cur[k], self.pts.reshape(-1, 1, 2), None,
                                               winSize=(15, 15), maxLevel=3)
-        self.prev = img
         self.pts = nxt.reshape(-1, 2)
         self.alive &= st.ravel() == 1
-        h, w = img.shape
+        h, w = cur[0].shape
         inside = (self.pts[:, 0] >= 0) & (self.pts[:, 0] < w) & (self.pts[:, 1] >= 0) & (self.pts[:, 1] < h)
         self.alive &= inside
+        rel = patch_affine(self.frames[0][2], image, self.p0[self.alive], self.pts[self.alive], self.saturation)
+        if rel is not None:
+            self.affine[index] = rel
+            self.gain = rel[0]
+        self.prev = cur
         self.tracks[index] = (self.pts.copy(), self.alive.copy())
         self.frames.append((index, timestamp, np.asarray(image, np.float32)))
         a, b = self.p0[self.alive], self.pts[self.alive]
@@ -176,4 +244,4 @@ class InitVerifier:
         log.debug("start-up: %s at frame %d; the map is rebuilt from two views (%d points)",
                     reason, index, len(pts3))
         return Bootstrap(T_cur_init=T_e, T_world_init=self.T_world_init, T_j_init=T_j, frames=list(self.frames),
-                         reason=reason)
+                         reason=reason, affine_j_init=dict(self.affine))

@@ -55,7 +55,7 @@ from .records import RowRecord
 from .timing import Timers
 from .tracking import Tracker, TrackingReference, depth_image_idepth
 from .tracking.relocalizer import Relocalizer
-from .photometric import PhotometricCalibration, PhotometricMonitor
+from .photometric import PhotometricCalibration, PhotometricMonitor, compose_affine
 
 log = logging.getLogger(__name__)
 
@@ -439,7 +439,8 @@ class VisualOdometry:
         self._verifier = None
         if not use_depth and self.config.system.verify_init and self.pose_source == "estimate":
             self._verifier = InitVerifier(self.config.system, self.map_intrinsics, frame.image, T_world_cam,
-                                          frame.index, frame.timestamp)
+                                          frame.index, frame.timestamp, self.config.tracking.saturation)
+            self._recent_affine[frame.index] = frame.affine
         self._initialized = True
         self.metric = bool(use_depth)
         self._last_pose = T_world_cam.copy()
@@ -580,9 +581,14 @@ class VisualOdometry:
         idx0, ts0, img0 = boot.frames[0]
         # an empty map: with these poses, stereo searches the full depth range and creates the
         # hypotheses itself (a random prior would keep pixels whose guess is off by > 2 sigma)
-        aff = self._recent_affine
-        mapper.initialize_from_depth(MapFrame(idx0, ts0, img0, boot_world, 0.0, aff.get(idx0, (1.0, 0.0))),
-                                     np.zeros_like(img0))
+        aff = dict(self._recent_affine)
+        aff0 = aff.get(idx0, (1.0, 0.0))
+        if self.config.tracking.affine_brightness:
+            # the brightness measured on the two-view corners: frames where tracking was lost have no
+            # chained estimate, and a chained one may have drifted with the random map
+            for idx, rel in boot.affine_j_init.items():
+                aff[idx] = compose_affine(aff0, rel)
+        mapper.initialize_from_depth(MapFrame(idx0, ts0, img0, boot_world, 0.0, aff0), np.zeros_like(img0))
         posed = [f for f in boot.frames[1:] if boot.T_j_init.get(f[0]) is not None]
         every = self.config.system.bootstrap_replay_every
         replay = [f for k, f in enumerate(posed) if (len(posed) - 1 - k) % every == 0]
@@ -591,6 +597,10 @@ class VisualOdometry:
             mapper.update(MapFrame(idx, ts, img, T, 0.0, aff.get(idx, (1.0, 0.0))))
         T_world_cur = project_to_se3(boot_world @ inverse_se3(boot.T_cur_init))
         frame.T_world_cam = T_world_cur
+        if frame.index in boot.affine_j_init and self.config.tracking.affine_brightness:
+            frame.affine = aff[frame.index]          # the chain goes on from the measured brightness
+            self._monitor.affine = frame.affine
+            self._recent_affine[frame.index] = frame.affine
         self._scale_id += 1                 # the two-view map has another scale than the random one
         self._install_mapper(mapper, frame)
         self._accept_pose(T_world_cur, smooth=False)

@@ -101,3 +101,45 @@ def test_random_initialisation_bootstraps_and_corrects_earlier_poses(tmp_path_fa
     ev = evaluate(seq.groundtruth, traj, align="sim3", delta_s=0.5).to_dict()
     assert ev["matched_poses"] >= 40
     assert ev["ate_pct_of_path"] < 1.0, ev  # 0.3% here; 2.8% without the bootstrap
+
+
+def test_patch_affine_recovers_a_known_gain_and_offset_despite_clipping(scene_and_start):
+    import cv2
+    from lite_vo.bootstrap import patch_affine
+    scene, T0, K = scene_and_start
+    img, _ = render_frame(scene, T0, K)
+    img = np.asarray(img, np.float32)
+    shift = np.array([3.0, -2.0])                               # (u, v) in pixels
+    moved = cv2.warpAffine(img, np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]), img.shape[::-1],
+                           borderMode=cv2.BORDER_REPLICATE)
+    pts = cv2.goodFeaturesToTrack(np.clip(img, 0, 255).astype(np.uint8), 300, 0.01, 7).reshape(-1, 2)
+    for a, b in ((0.7, 12.0), (1.8, -5.0)):                       # 1.8: the bright patches clip
+        raw = a * moved + b
+        clipped = np.clip(raw, 0, 255)
+        assert (raw > 255).mean() > 0.05 or a < 1
+        est = patch_affine(img, clipped, pts, pts + shift)
+        assert est is not None
+        assert abs(est[0] - a) < 0.02 and abs(est[1] - b) < 2.0, (a, b, est)
+    flat = np.full_like(img, 100.0)                                 # no contrast: no leverage for a gain
+    assert patch_affine(flat, flat, pts, pts) is None
+
+
+def test_bootstrap_under_auto_exposure_keeps_the_two_view_pose_and_measures_the_brightness(scene_and_start):
+    scene, T0, K = scene_and_start
+    frames = _frames(scene, T0, K, lambda k: exp_se3(np.array([0.012 * k, 0.002 * k, 0, 0, 0.001 * k, 0])), 40)
+    gains = [1.0 - 0.012 * k for k in range(len(frames))]          # exposure falling 1.2 % per frame
+    offsets = [0.3 * k for k in range(len(frames))]
+    images = [np.clip(g * np.asarray(img, np.float32) + o, 0, 255) for (_, img), g, o in zip(frames, gains, offsets)]
+    ver = InitVerifier(SystemConfig(), K, images[0], T0, 0, 0.0)
+    for k in range(1, len(frames)):
+        decision = ver.add(k, k / 30.0, images[k], T0)
+        if decision is not None:
+            break
+    assert isinstance(decision, Bootstrap), decision
+    T_true = inverse_se3(frames[k][0]) @ T0
+    assert _angle_deg(decision.T_cur_init[:3, 3], T_true[:3, 3]) < 5.0
+    assert np.degrees(np.linalg.norm(log_so3(decision.T_cur_init[:3, :3] @ T_true[:3, :3].T))) < 0.5
+    # every frame's brightness relative to the init frame, for the depth filter's replay
+    assert len(decision.affine_j_init) >= 0.9 * k
+    for j, (a, b) in decision.affine_j_init.items():
+        assert abs(a - gains[j]) < 0.03 and abs(a * 128 + b - (gains[j] * 128 + offsets[j])) < 2.5, (j, a, b)
