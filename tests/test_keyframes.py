@@ -13,7 +13,7 @@ CAM = PinholeIntrinsics(60.0, 60.0, 31.5, 23.5, 64, 48)
 def _kf(i, x, scale_id=0, rng=None):
     rng = rng or np.random.default_rng(i)
     d = np.full((48, 64), 0.5, np.float32)
-    d[rng.random((48, 64)) < 0.5] = np.nan
+    d.reshape(-1)[rng.permutation(d.size)[:d.size // 2]] = np.nan   # half empty: every keyframe the same size
     return Keyframe.make(i, i / 30, make_pose(np.eye(3), [x, 0, 0]), CAM, np.full((48, 64), 100, np.uint8),
                          d, np.where(np.isfinite(d), 1e-4, np.nan), None, scale_id)
 
