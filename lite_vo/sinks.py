@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .geometry import tum_from_pose
-from .io import Trajectory, write_file_atomic, write_ply, write_trajectory
+from .io import Trajectory, write_file_atomic, write_ply, write_ply_parts, write_trajectory
 from .io.trajectory import write_trajectory_kitti
 from .profiling.machine import cpu_model
 from .progress import Progress
@@ -214,9 +214,18 @@ class MapSink(OutputSink):
         self.last = published
 
     def on_finish(self, end: RunEnd) -> None:
+        params = dict(self.params)
+        voxel = params.pop("voxel", 0.0)
+        if self.store is not None and len(self.store) and not voxel > 0:
+            # streamed one keyframe at a time: the whole cloud (27 bytes a point, a million points on
+            # ICL) is never in memory
+            from .keyframes import scene_cloud_parts
+            parts = ((c.points, c.idepth_var, c.colors) for c in scene_cloud_parts(self.store, **params))
+            self.points = write_ply_parts(self.path, parts)
+            return
         if self.store is not None and len(self.store):
             from .keyframes import scene_cloud
-            cloud = scene_cloud(self.store, **self.params)
+            cloud = scene_cloud(self.store, voxel=voxel, **params)
             pts, var, colors = cloud.points, cloud.idepth_var, cloud.colors
         elif self.last is not None:
             pts, var, (v, u) = self.last.points_world()

@@ -105,3 +105,39 @@ def test_cloud_parts_are_the_cloud():
     assert np.array_equal(np.concatenate([p.points for p in parts]), whole.points)
     assert np.array_equal(np.concatenate([p.colors for p in parts]), whole.colors)
     assert np.array_equal(np.concatenate([p.keyframe for p in parts]), whole.keyframe)
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_streamed_ply_is_the_one_shot_ply(tmp_path, binary):
+    from lite_vo.io import read_ply, write_ply, write_ply_parts
+    kfs = [_kf(i, x=0.01 * i) for i in range(4)]
+    whole = scene_cloud(kfs, min_support=0, max_jump=np.inf)
+    write_ply(tmp_path / "one.ply", whole.points, whole.idepth_var, whole.colors, binary=binary)
+    n = write_ply_parts(tmp_path / "parts.ply", ((p.points, p.idepth_var, p.colors) for p in
+                                                 scene_cloud_parts(kfs, min_support=0, max_jump=np.inf)), binary=binary)
+    assert n == len(whole.points)
+    assert (tmp_path / "parts.ply").read_bytes() == (tmp_path / "one.ply").read_bytes()
+    assert np.array_equal(read_ply(tmp_path / "parts.ply")["red"], whole.colors[:, 0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.ply", "parts.ply"]   # no temporary left
+    with pytest.raises(ValueError):
+        write_ply_parts(tmp_path / "bad.ply", [(whole.points, None, whole.colors)])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.ply", "parts.ply"]
+
+
+def test_map_sink_streams_the_same_cloud(tmp_path):
+    from types import SimpleNamespace
+
+    from lite_vo.io import read_ply
+    from lite_vo.sinks import MapSink
+    st = KeyframeStore()
+    for i in range(4):                                    # a wall at depth 2, 40 % of it mapped
+        image, d, var, color = _inputs(i)
+        d[np.isfinite(d)] = 0.5
+        st.add(Keyframe.make(i, i / 30, make_pose(np.eye(3), [0.01 * i, 0, 0]), CAM, image, d, var, color))
+    whole = scene_cloud(st)
+    sink = MapSink(tmp_path / "map.ply")
+    sink.on_start(SimpleNamespace(keyframes=st))
+    sink.on_finish(None)
+    got = read_ply(tmp_path / "map.ply")
+    assert sink.points == len(whole.points) == len(got["x"]) > 0
+    assert np.array_equal(np.stack([got["x"], got["y"], got["z"]], 1), whole.points)
