@@ -160,7 +160,7 @@ def pose_distance(T_a: np.ndarray, T_b: np.ndarray, scene_depth: float) -> float
 class KeyframeStore:
     """Bounded, thread-safe keyframe store (see the module docstring)."""
 
-    def __init__(self, max_bytes: int = 96 * 2**20, max_keyframes: int = 200, min_translation_rel: float = 0.03,
+    def __init__(self, max_bytes: int = 32 * 2**20, max_keyframes: int = 200, min_translation_rel: float = 0.03,
                  min_rotation_deg: float = 3.0) -> None:
         if max_bytes <= 0 or max_keyframes < 1:
             raise ValueError("KeyframeStore: max_bytes and max_keyframes must be positive")
