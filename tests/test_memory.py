@@ -196,3 +196,35 @@ def test_the_depth_error_plot_needs_no_matplotlib(tmp_path):
     from lite_vo.plots import SERIES_BGR
     for bgr in SERIES_BGR:
         assert np.count_nonzero(np.all(img == bgr, axis=2)) > 50
+
+
+def test_the_vo_is_freed_before_the_exports(synth_small, monkeypatch):
+    """The sinks' ``on_finish`` (map.ply, plots) runs after the VO's working state was released, so the
+    exports reuse its memory instead of adding to the run's peak; the keyframe store stays readable."""
+    import weakref
+
+    import lite_vo
+    from lite_vo import session as session_mod
+    from lite_vo.session import OutputSink, Session
+
+    made = []
+    real = session_mod.VisualOdometry
+
+    def spy(*a, **k):
+        vo = real(*a, **k)
+        made.append(weakref.ref(vo))
+        return vo
+
+    monkeypatch.setattr(session_mod, "VisualOdometry", spy)
+
+    class Check(OutputSink):
+        def on_start(self, info):
+            self.store = info.keyframes
+
+        def on_finish(self, end):
+            self.alive_at_finish = made[0]() is not None
+            self.keyframes_at_finish = len(self.store)
+
+    c = Check()
+    Session(synth_small, lite_vo.load_profile("phone", ['system.init="random"']), sinks=[c], pose_source="gt").run()
+    assert len(made) == 1 and not c.alive_at_finish and c.keyframes_at_finish > 0
