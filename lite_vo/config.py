@@ -45,8 +45,9 @@ class SystemConfig:
     map_every: int = param(1, "sync mode: run a mapping iteration every k-th tracked frame", 1, 30)
     map_every_startup: int = param(4, "sync mode: mapping interval during the first startup_s seconds (paper: every 4th frame)", 1, 30)
     startup_s: float = param(3.0, "duration of the start-up phase in seconds", 0.0, 60.0)
-    keyframe_memory_mb: float = param(96.0, "bound of the keyframe history (whole-scene map.ply, relocalisation, AR "
-                                      "world): older, redundant keyframes are thinned to stay under it", 1.0, 100000.0)
+    keyframe_memory_mb: float = param(32.0, "bound of the keyframe history (whole-scene map.ply, relocalisation, AR "
+                                      "world; compact keyframes: about 0.44 MB at 320x240 with colour): older, redundant keyframes are "
+                                      "thinned to stay under it", 1.0, 100000.0)
     depth_eval_every: int = param(4, "when the sequence has depth images: compare every k-th mapped frame's map with "
                                   "its depth image (run.json depth_accuracy; the comparison is evaluation, not "
                                   "odometry: sampling keeps it off the frame budget); 0 = never", 0, 1000)

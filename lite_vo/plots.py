@@ -147,3 +147,95 @@ def plot_trajectory(gt: Optional[Trajectory], est: Trajectory, path: str | os.Pa
     except OSError as err_:
         raise InputError(f"{path}: cannot write the plot ({err_.strerror or err_})") from None
     return path
+
+
+# ----------------------------------------------------------------------------------------------
+# The depth error over time of every run with depth images, drawn with OpenCV
+# ----------------------------------------------------------------------------------------------
+
+#: BGR colours of the series (matplotlib's first three: blue, orange, green).
+SERIES_BGR = ((180, 119, 31), (14, 127, 255), (44, 160, 44))
+
+
+def _nice_step(span: float, ticks: int = 6) -> float:
+    """A 1-2-5 step giving about ``ticks`` ticks over ``span``."""
+    raw = max(span, 1e-9) / ticks
+    mag = 10.0 ** math.floor(math.log10(raw))
+    return next(m * mag for m in (1.0, 2.0, 5.0, 10.0) if m * mag >= raw)
+
+
+def line_chart(x: np.ndarray, series, title: str, xlabel: str, size_px: tuple = (600, 350)) -> np.ndarray:
+    """A line chart as a BGR uint8 image (OpenCV drawing: no matplotlib, so every run can write it
+    without the ~25 MB matplotlib adds to a process). ``series``: ``(label, values)`` pairs over
+    ``x``; NaN values leave gaps; the y axis starts at 0."""
+    import cv2
+    w, h = (int(v) for v in size_px)
+    img = np.full((h, w, 3), 255, np.uint8)
+    font, aa = cv2.FONT_HERSHEY_SIMPLEX, cv2.LINE_AA
+    left, right, top, bottom = 48, 12, 28, 44
+    x = np.asarray(x, np.float64)
+    ys = [np.asarray(v, np.float64) for _, v in series]
+    finite_x = x[np.isfinite(x)]
+    x0, x1 = (float(finite_x.min()), float(finite_x.max())) if len(finite_x) else (0.0, 1.0)
+    x1 = x1 if x1 > x0 else x0 + 1.0
+    finite_y = np.concatenate([y[np.isfinite(y)] for y in ys]) if ys else np.zeros(0)
+    y1 = float(finite_y.max()) * 1.05 if len(finite_y) and finite_y.max() > 0 else 1.0
+    pw, ph = w - left - right, h - top - bottom
+
+    def px(xv, yv):
+        return (np.rint(left + (xv - x0) / (x1 - x0) * pw).astype(np.int32),
+                np.rint(top + ph - yv / y1 * ph).astype(np.int32))
+
+    grid = (222, 222, 222)
+    for axis, lo, hi in (("x", x0, x1), ("y", 0.0, y1)):
+        step = _nice_step(hi - lo)
+        for t in np.arange(math.ceil(lo / step) * step, hi + 1e-9 * step, step):
+            label = f"{t:g}"
+            if axis == "x":
+                u = int(px(np.array([t]), np.array([0.0]))[0][0])
+                cv2.line(img, (u, top), (u, top + ph), grid, 1)
+                (tw, _), _ = cv2.getTextSize(label, font, 0.4, 1)
+                cv2.putText(img, label, (u - tw // 2, top + ph + 16), font, 0.4, (0, 0, 0), 1, aa)
+            else:
+                v = int(px(np.array([x0]), np.array([t]))[1][0])
+                cv2.line(img, (left, v), (left + pw, v), grid, 1)
+                (tw, th), _ = cv2.getTextSize(label, font, 0.4, 1)
+                cv2.putText(img, label, (left - 6 - tw, v + th // 2), font, 0.4, (0, 0, 0), 1, aa)
+    for (label, _), y, colour in zip(series, ys, SERIES_BGR * 3):
+        ok = np.isfinite(x) & np.isfinite(y)
+        us, vs = px(x, np.where(ok, y, 0.0))
+        runs = np.split(np.arange(len(x)), np.nonzero(~ok)[0])            # NaN values split the line
+        for r in runs:
+            r = r[ok[r]]
+            if len(r) >= 2:
+                cv2.polylines(img, [np.stack([us[r], vs[r]], 1)], False, colour, 2, aa)
+            elif len(r) == 1:
+                cv2.circle(img, (int(us[r[0]]), int(vs[r[0]])), 2, colour, -1, aa)
+    cv2.rectangle(img, (left, top), (left + pw, top + ph), (0, 0, 0), 1)
+    (tw, _), _ = cv2.getTextSize(xlabel, font, 0.45, 1)
+    cv2.putText(img, xlabel, (left + (pw - tw) // 2, h - 10), font, 0.45, (0, 0, 0), 1, aa)
+    (tw, _), _ = cv2.getTextSize(title, font, 0.5, 1)
+    cv2.putText(img, title, (max(4, (w - tw) // 2), 19), font, 0.5, (0, 0, 0), 1, aa)
+    widths = [cv2.getTextSize(lbl, font, 0.4, 1)[0][0] for lbl, _ in series]
+    bw = max(widths, default=0) + 36
+    bx, by = left + pw - bw - 6, top + 6
+    cv2.rectangle(img, (bx, by), (bx + bw, by + 18 * len(series) + 4), (255, 255, 255), -1)
+    cv2.rectangle(img, (bx, by), (bx + bw, by + 18 * len(series) + 4), (190, 190, 190), 1)
+    for k, ((label, _), colour) in enumerate(zip(series, SERIES_BGR * 3)):
+        yk = by + 13 + 18 * k
+        cv2.line(img, (bx + 6, yk - 4), (bx + 26, yk - 4), colour, 2, aa)
+        cv2.putText(img, label, (bx + 32, yk), font, 0.4, (0, 0, 0), 1, aa)
+    return img
+
+
+def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
+    """Write a BGR image as PNG; a one-line InputError when it cannot be written."""
+    import cv2
+    path = Path(path)
+    try:
+        ok = cv2.imwrite(str(path), image)
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise InputError(f"{path}: cannot write the plot")
+    return path

@@ -19,6 +19,7 @@ none of them needs a lock, because none is ever called from the mapping thread.
 from __future__ import annotations
 
 import ctypes
+import gc
 import itertools
 import logging
 import platform
@@ -321,6 +322,11 @@ class Session:
         end = RunEnd(status=status, frames=frames, timing=timing, events=events,
                      metric=bool(vo.metric or self.pose_source == "gt"),
                      depth_accuracy_series=vo.depth_accuracy_series, error=error, frames_read=read)
+        # the exports (map.ply, plots) reuse the memory of the VO's working state (the keyframe store
+        # stays: the sinks have it): on ICL, board, the end-of-run peak stays at the frame loop's
+        del vo
+        gc.collect()
+        trim_malloc()
         finish_error = None
         for s in self.sinks:               # every sink finishes, even when one of them fails
             try:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .geometry import tum_from_pose
-from .io import Trajectory, write_file_atomic, write_ply, write_trajectory
+from .io import Trajectory, write_file_atomic, write_ply, write_ply_parts, write_trajectory
 from .io.trajectory import write_trajectory_kitti
 from .profiling.machine import cpu_model
 from .progress import Progress
@@ -121,26 +121,15 @@ def summarize_depth_accuracy(series, skip_s: float = 1.0) -> dict | None:
 
 
 def plot_depth_error(series, path: Path, title: str) -> bool:
-    """Depth error over time (thesis Fig. 5.8) as a PNG; False when matplotlib is missing."""
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return False
+    """Depth error over time (thesis Fig. 5.8) as a PNG, drawn with OpenCV (:func:`lite_vo.plots.line_chart`:
+    matplotlib would add about 25 MB to the run's peak memory). True when written."""
+    from .plots import line_chart, write_png
     c = _columns(series, ("t", "median_abs_rel_error", "within_10pct", "density"))
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.plot(c["t"], 100 * c["median_abs_rel_error"], label="median |rel. error| (%)")
-    ax.plot(c["t"], 100 * (1 - c["within_10pct"]), label="outside 10% (%)")
-    ax.plot(c["t"], 100 * c["density"], label="density (% of pixels)")
-    ax.set_xlabel("time since start (s)")
-    ax.set_ylim(bottom=0)
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    chart = line_chart(c["t"], [("median |rel. error| (%)", 100 * c["median_abs_rel_error"]),
+                                ("outside 10% (%)", 100 * (1 - c["within_10pct"])),
+                                ("density (% of pixels)", 100 * c["density"])],
+                       title, "time since start (s)")
+    write_png(path, chart)
     return True
 
 
@@ -214,9 +203,18 @@ class MapSink(OutputSink):
         self.last = published
 
     def on_finish(self, end: RunEnd) -> None:
+        params = dict(self.params)
+        voxel = params.pop("voxel", 0.0)
+        if self.store is not None and len(self.store) and not voxel > 0:
+            # streamed one keyframe at a time: the whole cloud (27 bytes a point, a million points on
+            # ICL) is never in memory
+            from .keyframes import scene_cloud_parts
+            parts = ((c.points, c.idepth_var, c.colors) for c in scene_cloud_parts(self.store, **params))
+            self.points = write_ply_parts(self.path, parts)
+            return
         if self.store is not None and len(self.store):
             from .keyframes import scene_cloud
-            cloud = scene_cloud(self.store, **self.params)
+            cloud = scene_cloud(self.store, voxel=voxel, **params)
             pts, var, colors = cloud.points, cloud.idepth_var, cloud.colors
         elif self.last is not None:
             pts, var, (v, u) = self.last.points_world()

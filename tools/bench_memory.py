@@ -378,6 +378,7 @@ def main(argv=None) -> int:
             g = groups.setdefault(label, ([], data["checkpoints"]))
             g[0].extend(data["results"])
         out = Path(args.out_dir)
+        out.mkdir(parents=True, exist_ok=True)
         write_report([(label, res, cps) for label, (res, cps) in groups.items()], out / f"{args.name}.md", "", notes)
         (out / f"{args.name}.json").write_text(json.dumps(
             {"machine": machine(), "groups": {label: {"checkpoints": cps, "results": res}
@@ -410,6 +411,7 @@ def main(argv=None) -> int:
     env_note += ("Settings: " + ", ".join(f"lite_vo.session.{k}" for k in args.knob) + ".") if args.knob else ""
     if not args.no_write:
         out = Path(args.out_dir)
+        out.mkdir(parents=True, exist_ok=True)
         (out / f"{args.name}.json").write_text(json.dumps({"machine": machine(), "env": env_extra, "knobs": args.knob,
                                                           "checkpoints": checkpoints, "results": results},
                                                          indent=1) + "\n")
