@@ -1,7 +1,7 @@
 """``lite-vo run`` as a library call: the frame driver (:mod:`lite_vo.session`) with the output
 sinks of :mod:`lite_vo.sinks`, writing the contract files into a folder (ARCHITECTURE.md):
 ``trajectory.txt`` (as the run goes), ``timing.json``, ``run.json``, ``map.ply`` and, when the
-sequence has depth images, ``depth_accuracy.json`` (+ ``depth_error.png``, drawn with OpenCV).
+sequence has depth images, ``depth_accuracy.json`` (+ ``depth_error.png`` if matplotlib exists).
 
 No argparse here; the CLI module parses and calls :func:`run_sequence`. Imports no GL or physics package.
 """
