@@ -121,15 +121,26 @@ def summarize_depth_accuracy(series, skip_s: float = 1.0) -> dict | None:
 
 
 def plot_depth_error(series, path: Path, title: str) -> bool:
-    """Depth error over time (thesis Fig. 5.8) as a PNG, drawn with OpenCV (:func:`lite_vo.plots.line_chart`:
-    matplotlib would add about 25 MB to the run's peak memory). True when written."""
-    from .plots import line_chart, write_png
+    """Depth error over time (thesis Fig. 5.8) as a PNG; False when matplotlib is missing."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return False
     c = _columns(series, ("t", "median_abs_rel_error", "within_10pct", "density"))
-    chart = line_chart(c["t"], [("median |rel. error| (%)", 100 * c["median_abs_rel_error"]),
-                                ("outside 10% (%)", 100 * (1 - c["within_10pct"])),
-                                ("density (% of pixels)", 100 * c["density"])],
-                       title, "time since start (s)")
-    write_png(path, chart)
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(c["t"], 100 * c["median_abs_rel_error"], label="median |rel. error| (%)")
+    ax.plot(c["t"], 100 * (1 - c["within_10pct"]), label="outside 10% (%)")
+    ax.plot(c["t"], 100 * c["density"], label="density (% of pixels)")
+    ax.set_xlabel("time since start (s)")
+    ax.set_ylim(bottom=0)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
     return True
 
 

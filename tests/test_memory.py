@@ -176,28 +176,6 @@ def test_malloc_trimming_is_a_no_op_without_glibc(monkeypatch):
     assert session.trim_malloc() is False
 
 
-def test_the_depth_error_plot_needs_no_matplotlib(tmp_path):
-    """``depth_error.png`` is drawn with OpenCV: a run with depth images never imports matplotlib (about
-    25 MB of the end-of-run peak); the three series are drawn in their colours, NaN rows leave gaps."""
-    import subprocess
-
-    import cv2
-    series = [{"t": 0.1 * i, "median_abs_rel_error": 0.02 + 0.001 * i, "within_10pct": 0.9,
-               "density": 0.4 if i != 5 else float("nan")} for i in range(20)]
-    (tmp_path / "s.json").write_text(json.dumps(series))
-    code = ("import json, sys; from lite_vo.sinks import plot_depth_error; "
-            f"s = json.load(open({str(tmp_path / 's.json')!r})); "
-            f"ok = plot_depth_error(s, {str(tmp_path / 'd.png')!r}, 'title'); "
-            "print(ok, 'matplotlib' in sys.modules)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
-    assert out == ["True", "False"]
-    img = cv2.imread(str(tmp_path / "d.png"))
-    assert img.shape == (350, 600, 3)
-    from lite_vo.plots import SERIES_BGR
-    for bgr in SERIES_BGR:
-        assert np.count_nonzero(np.all(img == bgr, axis=2)) > 50
-
-
 def test_the_vo_is_freed_before_the_exports(synth_small, monkeypatch):
     """The sinks' ``on_finish`` (map.ply, plots) runs after the VO's working state was released, so the
     exports reuse its memory instead of adding to the run's peak; the keyframe store stays readable."""
