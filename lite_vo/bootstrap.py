@@ -12,8 +12,9 @@ the first seconds after a random initialisation:
    compared with the pose the VO tracked over the same frames;
 3. if they agree (rotation and translation direction within the configured angles) the
    initialisation is accepted; if not, it returns a :class:`Bootstrap`: the init frame and the
-   current frame are triangulated, every frame in between gets a PnP pose, and the system replays
-   the depth filter with these poses (as with ground-truth poses) before tracking goes on.
+   current frame are triangulated, every frame in between gets a PnP pose, all of them are refined
+   together by a small bundle adjustment, and the system replays the depth filter with these poses
+   (as with ground-truth poses) before tracking goes on.
 
 Owned by the tracking thread. Imports numpy, OpenCV and lite_vo core modules only.
 """
@@ -25,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import PinholeIntrinsics
-from .geometry import inverse_se3, log_so3, make_pose
+from .geometry import exp_se3, inverse_se3, log_so3, make_pose
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +46,7 @@ class Bootstrap:
 LCN_SIGMA = 4.0     # px at 320 width: window of the local normalisation the corners are followed in
 LCN_EPS = 4.0       # grey levels added to the local contrast (flat and clipped areas stay flat)
 LCN_GAIN_CHANGE = 0.05  # the normalised images are used once the gain has changed by more than this
+FB_MAX_PX = 0.5     # px at 320 width: forward-backward error up to which a corner is refined from the init frame
 
 
 def patch_affine(img0: np.ndarray, img1: np.ndarray, p0: np.ndarray, p1: np.ndarray, saturation: float = 250.0,
@@ -91,6 +93,99 @@ def patch_affine(img0: np.ndarray, img1: np.ndarray, p0: np.ndarray, p1: np.ndar
     return float(a), float(b)
 
 
+def _skew(q: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices."""
+    z = np.zeros(q.shape[:-1])
+    return np.stack([np.stack([z, -q[..., 2], q[..., 1]], -1),
+                     np.stack([q[..., 2], z, -q[..., 0]], -1),
+                     np.stack([-q[..., 1], q[..., 0], z], -1)], -2)
+
+
+def bundle_adjust(K: np.ndarray, T: np.ndarray, rho: np.ndarray, uv: np.ndarray, vis: np.ndarray,
+                  iters: int = 15, huber_px: float = 1.0):
+    """Sparse two-view-start bundle adjustment: corners anchored in view 0 by inverse depth.
+
+    ``T``: (F, 4, 4) poses mapping view 0 into each view (``T[0]`` is the identity and stays);
+    ``rho``: (N,) inverse depths of the corners along their rays in view 0 (``uv[0]``); ``uv``:
+    (F, N, 2) pixels; ``vis``: (F, N) observations. Levenberg-Marquardt on the reprojection error
+    (Huber weights), the inverse depths eliminated by the Schur complement (one unknown each), so
+    every view's pose is estimated from all views jointly; the rotation-translation ambiguity of a
+    short baseline is what a view-by-view PnP cannot resolve. The scale (a gauge freedom) is
+    restored to median depth 1 at the end. Returns the poses and inverse depths."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    ray = np.stack([(uv[0, :, 0] - cx) / fx, (uv[0, :, 1] - cy) / fy, np.ones(uv.shape[1])], -1)  # (N, 3)
+    obs, ob = uv[1:], vis[1:].astype(np.float64)
+    F = len(T) - 1
+    T, rho = T.copy(), rho.copy()
+
+    def residuals(T, rho):
+        Rr = np.einsum("fij,nj->fni", T[1:, :3, :3], ray)            # R ray, (F, N, 3)
+        q = Rr / rho[None, :, None] + T[1:, None, :3, 3]
+        z = q[..., 2]
+        ok = (z > 1e-6) & (rho > 0)[None, :]
+        zs = np.where(ok, z, 1.0)
+        r = np.stack([fx * q[..., 0] / zs + cx, fy * q[..., 1] / zs + cy], -1) - obs
+        return r, q, zs, Rr, ok
+
+    def cost(r, ok):
+        e = np.linalg.norm(r, axis=2)
+        w = ob * ok
+        h = np.where(e <= huber_px, 0.5 * e * e, huber_px * (e - 0.5 * huber_px))
+        return float((w * h).sum())
+
+    r, q, z, Rr, ok = residuals(T, rho)
+    c = cost(r, ok)
+    lam = 1e-3
+    for _ in range(iters):
+        e = np.linalg.norm(r, axis=2)
+        w = ob * ok * np.where(e <= huber_px, 1.0, huber_px / np.maximum(e, 1e-12))        # (F, N)
+        dpi = np.zeros(q.shape[:2] + (2, 3))
+        dpi[..., 0, 0] = fx / z
+        dpi[..., 0, 2] = -fx * q[..., 0] / z ** 2
+        dpi[..., 1, 1] = fy / z
+        dpi[..., 1, 2] = -fy * q[..., 1] / z ** 2
+        Jp = np.concatenate([dpi, -dpi @ _skew(q)], axis=-1)                              # (F, N, 2, 6)
+        Jr = np.einsum("fnij,fnj->fni", dpi, -Rr / rho[None, :, None] ** 2)               # (F, N, 2)
+        Hpp = np.einsum("fnki,fn,fnkj->fij", Jp, w, Jp)
+        Hpr = np.einsum("fnki,fn,fnk->fin", Jp, w, Jr)                                    # (F, 6, N)
+        Hrr = np.einsum("fnk,fn,fnk->n", Jr, w, Jr)
+        gp = np.einsum("fnki,fn,fnk->fi", Jp, w, r)
+        gr = np.einsum("fnk,fn,fnk->n", Jr, w, r)
+        while True:
+            Hrr_d = Hrr * (1.0 + lam) + 1e-9
+            S = -np.einsum("fin,gjn,n->figj", Hpr, Hpr, 1.0 / Hrr_d)
+            idx = np.arange(F)
+            S[idx, :, idx, :] += Hpp + lam * np.einsum("fii->fi", Hpp)[..., None] * np.eye(6)
+            S = S.reshape(6 * F, 6 * F)
+            bs = (gp - np.einsum("fin,n->fi", Hpr, gr / Hrr_d)).reshape(-1)
+            try:
+                dp = -np.linalg.solve(S + 1e-9 * np.eye(6 * F), bs).reshape(F, 6)
+            except np.linalg.LinAlgError:
+                return T, rho
+            dr = -(gr + np.einsum("fin,fi->n", Hpr, dp)) / Hrr_d
+            T_new = T.copy()
+            for f in range(F):
+                T_new[f + 1] = exp_se3(dp[f]) @ T[f + 1]
+            rho_new = rho + dr
+            r2, q2, z2, Rr2, ok2 = residuals(T_new, rho_new)
+            c2 = cost(r2, ok2)
+            if c2 < c and np.isfinite(c2):
+                T, rho, r, q, z, Rr, ok, c = T_new, rho_new, r2, q2, z2, Rr2, ok2, c2
+                lam = max(lam / 3.0, 1e-7)
+                break
+            lam *= 5.0
+            if lam > 1e4:
+                break
+        if lam > 1e4:
+            break
+    good = rho > 0
+    if good.any():
+        s = float(np.median(1.0 / rho[good]))
+        T[:, :3, 3] /= s
+        rho = rho * s
+    return T, rho
+
+
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     na, nb = np.linalg.norm(a), np.linalg.norm(b)
     if na < 1e-12 or nb < 1e-12:
@@ -117,6 +212,7 @@ class InitVerifier:
         self.K = intrinsics.K
         self.scale_px = intrinsics.width / 320.0
         self.prev = self._lk_images(image0)
+        self.img0 = self.prev
         img = self.prev[0]
         pts = cv2.goodFeaturesToTrack(img, maxCorners=int(config.verify_features), qualityLevel=0.01,
                                       minDistance=max(3, int(7 * self.scale_px)))
@@ -155,8 +251,21 @@ class InitVerifier:
         k = 1 if abs(self.gain - 1.0) > LCN_GAIN_CHANGE else 0
         nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev[k], cur[k], self.pts.reshape(-1, 1, 2), None,
                                               winSize=(15, 15), maxLevel=3)
-        self.pts = nxt.reshape(-1, 2)
         self.alive &= st.ravel() == 1
+        # each corner again from the init frame, starting at its chained position: errors of the
+        # frame-to-frame chain do not accumulate; kept where it is consistent (forward-backward
+        # within FB_MAX_PX, close to the chained position), the chained position elsewhere
+        lk0 = self.img0[k]
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+        ref, st0, _ = cv2.calcOpticalFlowPyrLK(lk0, cur[k], self.p0.reshape(-1, 1, 2), nxt.copy(),
+                                               winSize=(15, 15), maxLevel=1, flags=flags)
+        back, st1, _ = cv2.calcOpticalFlowPyrLK(cur[k], lk0, ref.copy(), self.p0.reshape(-1, 1, 2).copy(),
+                                                winSize=(15, 15), maxLevel=1, flags=flags)
+        fb = np.linalg.norm(back.reshape(-1, 2) - self.p0, axis=1)
+        use = (st0.ravel() == 1) & (st1.ravel() == 1) & (fb < FB_MAX_PX * self.scale_px)
+        use &= np.linalg.norm(ref.reshape(-1, 2) - nxt.reshape(-1, 2), axis=1) < 2.0 * self.scale_px
+        nxt = np.where(use[:, None, None], ref, nxt)
+        self.pts = nxt.reshape(-1, 2)
         h, w = cur[0].shape
         inside = (self.pts[:, 0] >= 0) & (self.pts[:, 0] < w) & (self.pts[:, 1] >= 0) & (self.pts[:, 1] < h)
         self.alive &= inside
@@ -241,7 +350,26 @@ class InitVerifier:
                 found, rvec, tvec = cv2.solvePnP(pts3[ok], pts[alive_idx][ok].astype(np.float64), self.K, None,
                                                  rvec, tvec, True, flags=cv2.SOLVEPNP_ITERATIVE)
             T_j[j] = make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel()) if found else None
+        T_j, T_e = self._refine(T_j, alive_idx, pts3[:, 2], index)
         log.debug("start-up: %s at frame %d; the map is rebuilt from two views (%d points)",
                     reason, index, len(pts3))
         return Bootstrap(T_cur_init=T_e, T_world_init=self.T_world_init, T_j_init=T_j, frames=list(self.frames),
                          reason=reason, affine_j_init=dict(self.affine))
+
+    def _refine(self, T_j, alive_idx, z_init, index):
+        """The poses of every stored view and the depths ``z_init`` (init frame) of the corners that were
+        inliers at the decision frame, adjusted together (:func:`bundle_adjust`)."""
+        views = [self.index0] + [j for j in sorted(self.tracks) if T_j.get(j) is not None]
+        F, N = len(views), len(alive_idx)
+        uv = np.zeros((F, N, 2))
+        vis = np.zeros((F, N), bool)
+        T = np.zeros((F, 4, 4))
+        uv[0], vis[0], T[0] = self.p0[alive_idx], True, np.eye(4)
+        for f, j in enumerate(views[1:], 1):
+            pts, alive = self.tracks[j]
+            uv[f], vis[f], T[f] = pts[alive_idx], alive[alive_idx], T_j[j]
+        T, _ = bundle_adjust(self.K, T, 1.0 / z_init, uv, vis)
+        out = dict(T_j)
+        for f, j in enumerate(views):
+            out[j] = T[f]
+        return out, out[index]
