@@ -6,9 +6,10 @@ thumbnail's SSD against the new frame (zero-mean, unit-variance 16x12 thumbnails
 is tracked from its own pose (and, when ORB features match, from a PnP pose of the matches with the
 keyframe's semi-dense depth: a guess for view changes beyond the direct basin); a result is accepted
 when it passes the tracker's lost test and the stricter ``reloc_min_good_ratio``. Of the accepted
-candidates the one whose map overlaps the new frame most wins (the most good residuals: the new map
-starts from it; the residuals of accepted candidates differ by noise, on the synthetic loop 0.96
-against 0.99 for keyframes with 7,400 and 10,700 good points).
+candidates the one whose pose is best determined wins: the smallest residual over the square root of
+the number of good residuals (a standard error; the residual alone ties at noise level between a
+keyframe that sees little of the new frame and one that sees much of it: on the synthetic loop 0.96
+against 0.99 with 7,400 and 10,700 good points).
 
 Brightness: the brightness of a stored keyframe relative to a frame after a jump is unknown, and
 estimating it jointly with a pose that is still far off lets the gain collapse towards 0 (a flattened
@@ -64,9 +65,9 @@ def _pose_distance(T_a: np.ndarray, T_b: np.ndarray, depth: float) -> float:
     return dt + float(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
-def _overlap(tr: TrackingResult) -> float:
-    """Good residuals of a tracking result: how much of the keyframe's map the new frame sees."""
-    return tr.good_ratio * tr.points_used
+def _score(tr: TrackingResult) -> float:
+    """Candidate choice, lower is better: the residual over the square root of the good residuals."""
+    return tr.residual / np.sqrt(max(tr.good_ratio * tr.points_used, 1.0))
 
 
 class Relocalizer:
@@ -214,7 +215,7 @@ class Relocalizer:
                 tr = self._fixed.track(ref, pyramid, guess, affine_guess, sigma_i)
                 if not self._accepted(tr):
                     continue
-                if best is None or _overlap(tr) > _overlap(best[2]):
+                if best is None or _score(tr) < _score(best[2]):
                     best = (kf, name, tr)
                 break
         if best is None:
