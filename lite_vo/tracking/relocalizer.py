@@ -6,7 +6,10 @@ thumbnail's SSD against the new frame (zero-mean, unit-variance 16x12 thumbnails
 is tracked from its own pose (and, when ORB features match, from a PnP pose of the matches with the
 keyframe's semi-dense depth: a guess for view changes beyond the direct basin); a result is accepted
 when it passes the tracker's lost test and the stricter ``reloc_min_good_ratio``. Of the accepted
-candidates the one whose pose is best determined wins: the smallest residual over the square root of
+candidates the one whose pose is best determined wins (once one candidate is accepted, the others are
+tracked again from the pose it found: their own pose or features may have been outside the basin; on
+ICL with 40 frames cut out the better-converged keyframe 24 was reached only this way, ATE 1.46 ->
+0.40 % with affine brightness): the smallest residual over the square root of
 the number of good residuals (a standard error; the residual alone ties at noise level between a
 keyframe that sees little of the new frame and one that sees much of it: on the synthetic loop 0.96
 against 0.99 with 7,400 and 10,700 good points).
@@ -48,7 +51,8 @@ class Relocalisation:
     keyframe: object
     T_world_new: np.ndarray
     result: TrackingResult
-    guess: str                    # "keyframe" (from its own pose) or "pnp" (feature guess)
+    guess: str                    # "keyframe" (from its own pose), "pnp" (feature guess) or "shared" (from the
+                                  # pose another candidate found)
     tried: int                    # tracking calls made
 
 
@@ -220,6 +224,16 @@ class Relocalizer:
                 break
         if best is None:
             return None
+        # the other candidates again, from the pose the winner found (a guess inside their basin)
+        T_world_new = np.asarray(best[0].T_world_cam, np.float64) @ best[2].T_ref_new
+        for kf in cands:
+            if kf is best[0]:
+                continue
+            tried += 1
+            guess = inverse_se3(np.asarray(kf.T_world_cam, np.float64)) @ T_world_new
+            tr = self._fixed.track(self._reference(kf), pyramid, guess, affine_guess, sigma_i)
+            if self._accepted(tr) and _score(tr) < _score(best[2]):
+                best = (kf, "shared", tr)
         kf, name, tr = best
         if self._fixed is not self.tracker:   # the joint pose + brightness estimate, from the winner's
             tried += 1
