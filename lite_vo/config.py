@@ -35,6 +35,12 @@ class ResolutionConfig:
     map_width: int = param(320, "mapping image width in pixels; the height follows the camera's aspect ratio", 32, 4096)
     track_level: int = param(1, "finest pyramid level used for tracking (0 = mapping resolution, 1 = half)", 0, 4)
     pyramid_levels: int = param(5, "number of pyramid levels (level 0 = mapping resolution)", 1, 7)
+    min_track_row_share: float = param(0.2, "the finest tracking level is track_level unless its image would have "
+                                       "fewer rows than this share of the mapping width, then the next finer one "
+                                       "(down to 0): wide cameras keep enough rows for the pose (KITTI 1226x370 at "
+                                       "phone: 320x96 mapping, tracked at 320x96 instead of 160x48; 4:3, 16:9 and "
+                                       "EuRoC's 752x480 keep their level at every shipped profile); 0 = off",
+                                       0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -71,6 +77,16 @@ class SystemConfig:
     blur_min_sharpness: float = param(0.6, "a frame whose sharpness is below this share of the recent median is tracked "
                                       "only: never mapped, never a stereo reference (0 = off)", 0.0, 1.0)
     bootstrap_replay_every: int = param(1, "two-view bootstrap: replay the depth filter on every k-th stored frame", 1, 30)
+
+
+def tracking_level(res: ResolutionConfig, map_width: int, map_height: int) -> int:
+    """The finest tracking level for a mapping image of ``map_width`` x ``map_height``: ``res.track_level``,
+    lowered (down to 0) while that level's image has fewer rows than ``res.min_track_row_share`` times
+    the mapping width (level ``l`` has ``map_height // 2**l`` rows)."""
+    level = res.track_level
+    while level > 0 and map_height // 2 ** level < res.min_track_row_share * map_width:
+        level -= 1
+    return level
 
 
 def _section_types() -> dict[str, type]:

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .config import tracking_level
 from .geometry import tum_from_pose
 from .io import Trajectory, write_file_atomic, write_ply, write_ply_parts, write_trajectory
 from .io.trajectory import write_trajectory_kitti
@@ -184,7 +185,7 @@ class RunInfoSink(OutputSink):
             "sequence": {"name": s.name, "path": s.path, "frames_total": s.frames_total,
                          "start_frame": s.start_frame, "max_frames": s.max_frames},
             "status": status, "depth_accuracy": None, "mode": s.config.system.mode,
-            "depth_source": s.depth_source, "pose_source": s.pose_source,
+            "depth_source": s.depth_source, "pose_source": s.pose_source, "resolution": _resolution(s),
             "machine": {"machine": platform.machine(), "cpu": cpu_model(), "cores": os.cpu_count()},
         }
 
@@ -192,6 +193,14 @@ class RunInfoSink(OutputSink):
         if self.out is None:
             return
         write_file_atomic(self.out / name, json.dumps(data, indent=2, default=_json_default) + "\n")
+
+
+def _resolution(s: SessionInfo) -> dict:
+    """Mapping and tracking image sizes of a run (the tracking level after the wide-image rule)."""
+    cam, res = s.map_camera, s.config.resolution
+    level = tracking_level(res, cam.width, cam.height)
+    return {"map": [cam.width, cam.height], "track_level": level,
+            "track": [cam.level(level).width, cam.level(level).height]}
 
 
 class MapSink(OutputSink):

@@ -45,7 +45,7 @@ import numpy as np
 
 from .bootstrap import InitVerifier
 from .camera import Camera, PinholeIntrinsics
-from .config import VOConfig
+from .config import VOConfig, tracking_level
 from .errors import InputError, LiteVOError
 from .geometry import inverse_se3, project_to_se3
 from .image import image_pyramid
@@ -193,10 +193,17 @@ class VisualOdometry:
             camera = Camera(camera)
         self._rectifier = camera.rectifier(res.map_width, multiple_of=2 ** (res.pyramid_levels - 1))
         self.map_intrinsics: PinholeIntrinsics = self._rectifier.intrinsics
+        #: the finest tracking level (``resolution.track_level``, finer for wide images: :func:`tracking_level`)
+        self.track_level = tracking_level(res, self.map_intrinsics.width, self.map_intrinsics.height)
+        if self.track_level != res.track_level:
+            lv = self.map_intrinsics.level(self.track_level)
+            log.info("tracking at level %d (%dx%d) instead of %d: a %dx%d mapping image has too few rows "
+                     "(resolution.min_track_row_share)", self.track_level, lv.width, lv.height, res.track_level,
+                     self.map_intrinsics.width, self.map_intrinsics.height)
         self.timers = Timers()
         self._rng_seed = config.system.seed
         # tracking thread only
-        self._tracker = Tracker(config.tracking, self.map_intrinsics, res.pyramid_levels, res.track_level)
+        self._tracker = Tracker(config.tracking, self.map_intrinsics, res.pyramid_levels, self.track_level)
         self._last_pose: np.ndarray | None = None
         self._last_good_pose: np.ndarray | None = None
         self._velocity = np.eye(4)
@@ -209,7 +216,7 @@ class VisualOdometry:
         self._last_ts: float | None = None
         self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "reinit": 0, "bootstrap": 0, "mapped": 0,
                        "relocalised": 0}
-        self._relocalizer = Relocalizer(config.tracking, self._tracker, res.pyramid_levels, res.track_level) \
+        self._relocalizer = Relocalizer(config.tracking, self._tracker, res.pyramid_levels, self.track_level) \
             if config.tracking.relocalise else None
         self._prev_depth_frame: _Frame | None = None
         # mapping thread only (replaced as a whole, under _ref_lock, on (re-)initialisation)
@@ -394,7 +401,7 @@ class VisualOdometry:
         t = time.perf_counter()
         tref = TrackingReference.build(frame.pyramid, idepth, idepth_var, valid, self.map_intrinsics, frame.index,
                                        smooth_sigma=self.config.tracking.smooth_sigma,
-                                       min_level=self.config.resolution.track_level)
+                                       min_level=self.track_level)
         self.timers.add("build_reference", (time.perf_counter() - t) * 1e3)
         arrays = [np.array(a) for a in (idepth, idepth_var, valid)]
         for a in arrays:
@@ -558,7 +565,9 @@ class VisualOdometry:
         self.counts["relocalised"] += 1
         quality = {**quality, "residual": float(tr.residual), "good_ratio": float(tr.good_ratio),
                    "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used),
-                   "keyframe": int(kf.index), "reloc_guess": rel.guess}
+                   "keyframe": int(kf.index), "reloc_guess": rel.guess, "affine_a": tr.affine[0],
+                   "affine_b": tr.affine[1], "brightness_a": float(frame.affine[0]),
+                   "brightness_b": float(frame.affine[1]), "lost_reason": ""}
         mapped = self._hand_to_mapping(frame)
         return FrameResult(frame.index, frame.timestamp, T_world_new.copy(), False, quality, mapped=mapped,
                            event="relocalised")

@@ -25,8 +25,9 @@ class TrackingConfig:
                                     "|r - median(r)| in grey levels (a common brightness offset does not count; 0 = off)",
                                     0.0, 255.0)
     min_inside_ratio: float = param(0.01, "lost when fewer than this share of the level's pixels warp into the image", 0.0, 1.0)
-    affine_brightness: bool = param(False, "estimate the affine brightness change I_new = a*I_ref + b (a = exp(alpha)) "
-                                    "jointly with the pose (8 unknowns; auto-exposure cameras)")
+    affine_brightness: bool = param(True, "estimate the affine brightness change I_new = a*I_ref + b (a = exp(alpha)) "
+                                    "jointly with the pose (8 unknowns; auto-exposure cameras; off: brightness "
+                                    "taken as constant)")
     max_gain_change: float = param(2.0, "lost when the estimated gain a (new frame relative to the reference) is above "
                                    "this or below its inverse (a flat garbage image can be 'explained' by a -> 0)",
                                    1.0, 100.0)
