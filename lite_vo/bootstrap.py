@@ -46,7 +46,6 @@ class Bootstrap:
 LCN_SIGMA = 4.0     # px at 320 width: window of the local normalisation the corners are followed in
 LCN_EPS = 4.0       # grey levels added to the local contrast (flat and clipped areas stay flat)
 LCN_GAIN_CHANGE = 0.05  # the normalised images are used once the gain has changed by more than this
-FB_MAX_PX = 0.5     # px at 320 width: forward-backward error up to which a corner is refined from the init frame
 
 
 def patch_affine(img0: np.ndarray, img1: np.ndarray, p0: np.ndarray, p1: np.ndarray, saturation: float = 250.0,
@@ -212,7 +211,6 @@ class InitVerifier:
         self.K = intrinsics.K
         self.scale_px = intrinsics.width / 320.0
         self.prev = self._lk_images(image0)
-        self.img0 = self.prev
         img = self.prev[0]
         pts = cv2.goodFeaturesToTrack(img, maxCorners=int(config.verify_features), qualityLevel=0.01,
                                       minDistance=max(3, int(7 * self.scale_px)))
@@ -252,19 +250,6 @@ class InitVerifier:
         nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev[k], cur[k], self.pts.reshape(-1, 1, 2), None,
                                               winSize=(15, 15), maxLevel=3)
         self.alive &= st.ravel() == 1
-        # each corner again from the init frame, starting at its chained position: errors of the
-        # frame-to-frame chain do not accumulate; kept where it is consistent (forward-backward
-        # within FB_MAX_PX, close to the chained position), the chained position elsewhere
-        lk0 = self.img0[k]
-        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
-        ref, st0, _ = cv2.calcOpticalFlowPyrLK(lk0, cur[k], self.p0.reshape(-1, 1, 2), nxt.copy(),
-                                               winSize=(15, 15), maxLevel=1, flags=flags)
-        back, st1, _ = cv2.calcOpticalFlowPyrLK(cur[k], lk0, ref.copy(), self.p0.reshape(-1, 1, 2).copy(),
-                                                winSize=(15, 15), maxLevel=1, flags=flags)
-        fb = np.linalg.norm(back.reshape(-1, 2) - self.p0, axis=1)
-        use = (st0.ravel() == 1) & (st1.ravel() == 1) & (fb < FB_MAX_PX * self.scale_px)
-        use &= np.linalg.norm(ref.reshape(-1, 2) - nxt.reshape(-1, 2), axis=1) < 2.0 * self.scale_px
-        nxt = np.where(use[:, None, None], ref, nxt)
         self.pts = nxt.reshape(-1, 2)
         h, w = cur[0].shape
         inside = (self.pts[:, 0] >= 0) & (self.pts[:, 0] < w) & (self.pts[:, 1] >= 0) & (self.pts[:, 1] < h)
