@@ -1,6 +1,6 @@
 """Forward motion (issue 14, part 2): the `driving` profile and KITTI 07.
 
-The diagnosis (NOTES_kitti.md): with ground-truth poses the mapping filter builds a map that
+The diagnosis (README, "What it does, measured", the KITTI row): with ground-truth poses the mapping filter builds a map that
 tracking holds against (1-2 % translation error per frame); what failed was the closed loop at the
 `phone` settings: tracking at 160x48, no brightness model under KITTI's auto-exposure, and a map
 propagated into every frame. `phone` now estimates the brightness and tracks wide images at the

@@ -74,6 +74,8 @@ class TrackingConfig:
     reloc_min_good_ratio: float = param(0.7, "relocalisation: accept only when the good-residual share is at least "
                                         "this (stricter than min_good_ratio) besides the tracker's lost test",
                                         0.0, 1.0)
+    reloc_max_abs_residual: float = param(20.0, "relocalisation: the residual-spread bound of max_abs_residual for a "
+                                          "keyframe seen from elsewhere (occlusions, view-dependent shading)", 0.0, 255.0)
     reloc_features: int = param(500, "relocalisation: ORB features per image for a PnP guess against the keyframe's "
                                 "depth, tried before the keyframe's own pose (0 = off: own pose only)", 0, 10000)
     reloc_min_inliers: int = param(15, "relocalisation: PnP inliers needed for the feature guess", 6, 10000)

@@ -81,8 +81,11 @@ class Relocalizer:
         self.config = config
         self.tracker = tracker
         # candidates are tracked with the brightness held fixed (see the module docstring)
-        self._fixed = tracker if not config.affine_brightness else Tracker(
-            dataclasses.replace(config, affine_brightness=False), tracker.intrinsics0, pyramid_levels, track_level)
+        # and with the spread bound of relocalisation: an old keyframe seen from elsewhere leaves more
+        # occlusions and view-dependent shading in the residuals than the last frame does
+        self._fixed = Tracker(dataclasses.replace(config, affine_brightness=False,
+                                                  max_abs_residual=config.reloc_max_abs_residual),
+                              tracker.intrinsics0, pyramid_levels, track_level)
         self.pyramid_levels = int(pyramid_levels)
         self.track_level = int(track_level)
         self._refs: OrderedDict = OrderedDict()       # keyframe index -> TrackingReference (LRU)
@@ -235,7 +238,7 @@ class Relocalizer:
             if self._accepted(tr) and _score(tr) < _score(best[2]):
                 best = (kf, "shared", tr)
         kf, name, tr = best
-        if self._fixed is not self.tracker:   # the joint pose + brightness estimate, from the winner's
+        if self.config.affine_brightness:   # the joint pose + brightness estimate, from the winner's
             tried += 1
             joint = self.tracker.track(self._reference(kf), pyramid, tr.T_ref_new, tr.affine, sigma_i)
             if self._accepted(joint):
