@@ -784,15 +784,16 @@ def fill_kernel(st, maxgrad, prm, new_flag):
         return
     big = np.iinfo(np.int64).max
     # horizontal 5-sums (validity, idepth/var, 1/var) and 5-min (ref_id) of the valid pixels
-    hv = np.zeros((h, w), np.float64)
-    hs = np.zeros((h, w), np.float64)
-    hi = np.zeros((h, w), np.float64)
-    hr = np.full((h, w), big, np.int64)
+    # (only columns 2 .. w-3 are read below: the rest stays uninitialised)
+    hv = np.empty((h, w), np.float64)
+    hs = np.empty((h, w), np.float64)
+    hi = np.empty((h, w), np.float64)
+    hr = np.empty((h, w), np.int64)
+    pv = np.empty(w, np.float64)
+    ps = np.empty(w, np.float64)
+    pi = np.empty(w, np.float64)
+    pr = np.empty(w, np.int64)
     for y in range(h):
-        pv = np.zeros(w, np.float64)
-        ps = np.zeros(w, np.float64)
-        pi = np.zeros(w, np.float64)
-        pr = np.full(w, big, np.int64)
         for x in range(w):
             if valid[y, x] != 0:
                 iv = 1.0 / np.float64(idepth_var[y, x])
@@ -800,6 +801,11 @@ def fill_kernel(st, maxgrad, prm, new_flag):
                 ps[x] = idepth[y, x] * iv
                 pi[x] = iv
                 pr[x] = ref_id[y, x]
+            else:
+                pv[x] = 0.0
+                ps[x] = 0.0
+                pi[x] = 0.0
+                pr[x] = big
         for x in range(2, w - 2):
             hv[y, x] = pv[x - 2] + pv[x - 1] + pv[x] + pv[x + 1] + pv[x + 2]
             hs[y, x] = ps[x - 2] + ps[x - 1] + ps[x] + ps[x + 1] + ps[x + 2]
