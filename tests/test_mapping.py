@@ -648,3 +648,14 @@ def test_exposure_changes_give_the_same_depth_when_compensated(tex):
     assert np.median(np.abs(d_e[both] - d_c[both]) / d_c[both]) < 0.002
     # uncompensated: fewer successful stereo updates in the last iteration
     assert runs["ignored"][1].updated < 0.8 * runs["compensated"][1].updated
+
+
+def test_interleaved_rows_visit_every_row_once_spread_over_the_image():
+    from lite_vo.mapping._kernels import interleaved_rows
+    for lo, hi, stride in ((3, 237, 8), (3, 117, 8), (0, 10, 3), (3, 4, 8), (5, 5, 8), (3, 20, 1)):
+        rows = interleaved_rows(lo, hi, stride)
+        assert sorted(rows.tolist()) == list(range(lo, hi))
+    rows = interleaved_rows(3, 237, 8)
+    first_half = rows[:len(rows) // 2]
+    # each half of the order (what one of two threads gets) has rows from every band of 8 rows
+    assert len({int(y - 3) // 8 for y in first_half}) == len({int(y - 3) // 8 for y in rows})

@@ -112,6 +112,27 @@ def _bilinear(img, x, y):
             + (1.0 - dx) * dy * img[iy + 1, ix] + dx * dy * img[iy + 1, ix + 1])
 
 
+#: row interleaving of the parallel stereo pass (:func:`interleaved_rows`)
+ROW_STRIDE = 8
+
+
+@njit(cache=True, nogil=True)
+def interleaved_rows(lo, hi, stride):
+    """The rows ``lo .. hi-1`` in the order ``lo, lo+stride, lo+2*stride, .., lo+1, lo+1+stride, ..``.
+
+    A parallel loop over this order hands each thread (numba splits the range into equal contiguous
+    blocks) rows from every band of ``stride`` rows, instead of one part of the image: the stereo
+    work per row follows the scene (on ICL the lower half has 1.5x the searches of the upper).
+    Every row is still processed exactly once, so the result does not change."""
+    out = np.empty(max(hi - lo, 0), np.int64)
+    k = 0
+    for c in range(min(stride, max(hi - lo, 0))):
+        for y in range(lo + c, hi, stride):
+            out[k] = y
+            k += 1
+    return out
+
+
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def gradients_kernel(img, gx, gy, maxgrad):
     """Half central differences (0 on the 1-pixel border) and the 3x3 max filter of |g|.
@@ -412,7 +433,9 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
     nref = ref_slots.shape[0]
     min_grad = prm[P_MIN_GRAD]
     max_idepth_all = prm[P_MAX_IDEPTH]
-    for y in prange(3, h - 3):
+    rows = interleaved_rows(3, h - 3, ROW_STRIDE)
+    for yi in prange(rows.shape[0]):
+        y = rows[yi]
         samples = np.empty(scratch_len, np.float64)
         ssd = np.empty(scratch_len, np.float64)
         for x in range(3, w - 3):
