@@ -112,24 +112,33 @@ def _bilinear(img, x, y):
             + (1.0 - dx) * dy * img[iy + 1, ix] + dx * dy * img[iy + 1, ix + 1])
 
 
-#: row interleaving of the parallel stereo pass (:func:`interleaved_rows`)
-ROW_STRIDE = 8
+#: rows per block of the parallel stereo pass's row order (:func:`interleaved_rows`)
+ROW_BLOCK = 8
 
 
 @njit(cache=True, nogil=True)
-def interleaved_rows(lo, hi, stride):
-    """The rows ``lo .. hi-1`` in the order ``lo, lo+stride, lo+2*stride, .., lo+1, lo+1+stride, ..``.
+def interleaved_rows(lo, hi, block, nthreads):
+    """The rows ``lo .. hi-1`` in blocks of ``block`` rows, the blocks ordered by their index modulo
+    ``nthreads`` (blocks 0, T, 2T, .., then 1, T+1, .., ...; the natural order for one thread).
 
-    A parallel loop over this order hands each thread (numba splits the range into equal contiguous
-    blocks) rows from every band of ``stride`` rows, instead of one part of the image: the stereo
-    work per row follows the scene (on ICL the lower half has 1.5x the searches of the upper).
-    Every row is still processed exactly once, so the result does not change."""
-    out = np.empty(max(hi - lo, 0), np.int64)
+    A parallel loop over this order hands each of the ``nthreads`` threads (numba splits the range into
+    equal contiguous parts) every T-th block, i.e. rows from the whole image instead of one part of it:
+    the stereo work per row follows the scene (on ICL the lower half has 1.5x the searches of the
+    upper). Rows inside a block stay consecutive (neighbouring rows read neighbouring reference
+    pixels, from the cache). Every row is processed exactly once, so the result does not change."""
+    n = max(hi - lo, 0)
+    out = np.empty(n, np.int64)
+    if nthreads <= 1 or block < 1:
+        for k in range(n):
+            out[k] = lo + k
+        return out
+    nblocks = (n + block - 1) // block
     k = 0
-    for c in range(min(stride, max(hi - lo, 0))):
-        for y in range(lo + c, hi, stride):
-            out[k] = y
-            k += 1
+    for c in range(min(nthreads, nblocks)):
+        for bi in range(c, nblocks, nthreads):
+            for y in range(lo + bi * block, min(lo + (bi + 1) * block, hi)):
+                out[k] = y
+                k += 1
     return out
 
 
@@ -417,7 +426,7 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
-def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scratch_len, status):
+def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scratch_len, status, row_groups=1):
     """One stereo pass over the map ``st`` (a :class:`MapState`, in place) against the reference
     buffer ``refs`` (:class:`RefFrames`, oldest -> newest); ``cam = (fx, fy, cx, cy)``.
 
@@ -425,6 +434,10 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
     (no/bad match), 5 no usable reference (line outside the image, scale change, NaN),
     6 removed (gradient too low), 7 epipolar line unusable (too short, weak gradient along it),
     8 skipped (converged: its last search line was shorter than min_epl_search).
+
+    ``row_groups``: the rows are visited in the order of :func:`interleaved_rows` with this many
+    groups (pass the number of numba threads: balances them; 1 = top to bottom). The result does
+    not depend on it.
     """
     ref_images, ref_slots, ref_ids, ref_R, ref_t, ref_c, ref_residual, ref_aff = refs
     idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist, skip = st
@@ -433,7 +446,7 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
     nref = ref_slots.shape[0]
     min_grad = prm[P_MIN_GRAD]
     max_idepth_all = prm[P_MAX_IDEPTH]
-    rows = interleaved_rows(3, h - 3, ROW_STRIDE)
+    rows = interleaved_rows(3, h - 3, ROW_BLOCK, row_groups)
     for yi in prange(rows.shape[0]):
         y = rows[yi]
         samples = np.empty(scratch_len, np.float64)
@@ -909,6 +922,7 @@ def warmup() -> None:
                      np.array([[1.0, 0.0], [1.0, 0.0]]))
     status = np.zeros((h, w), np.int8)
     observe_kernel(img, gx, gy, mg, refs, st, cam, prm, 1, 0, 64, status)
+    observe_kernel(img, gx, gy, mg, refs, st, cam, prm, 1, 0, 64, status, 2)    # as the Mapper calls it
     new = new_state(h, w)
     propagate_kernel(st, img, img, mg, R, t, cam, prm, np.array([1.0, 0.0]), new, propagation_work(h, w))
     o_valid = np.zeros((h, w), np.uint8)
