@@ -157,6 +157,16 @@ def pose_distance(T_a: np.ndarray, T_b: np.ndarray, scene_depth: float) -> float
     return dt + math.acos(float(np.clip(c, -1.0, 1.0)))
 
 
+def pose_distances(poses: np.ndarray, scene_depth: float) -> np.ndarray:
+    """:func:`pose_distance` of every pair of the poses ``(n, 4, 4)``: an ``(n, n)`` matrix (vectorised:
+    the store's thinning compares every pair of up to ``max_keyframes`` keyframes on each add)."""
+    t = poses[:, :3, 3]
+    dt = np.linalg.norm(t[:, None, :] - t[None, :, :], axis=-1) / max(scene_depth, 1e-12)
+    R = poses[:, :3, :3]
+    c = (np.einsum("aij,bij->ab", R, R) - 1.0) / 2.0            # trace(R_a^T R_b)
+    return dt + np.arccos(np.clip(c, -1.0, 1.0))
+
+
 class KeyframeStore:
     """Bounded, thread-safe keyframe store (see the module docstring)."""
 
@@ -263,9 +273,14 @@ class KeyframeStore:
                 return i
         depth = kfs[-1].median_depth if np.isfinite(kfs[-1].median_depth) else 1.0
         best, best_d = 0, np.inf
-        for i in range(len(kfs) - 1):        # redundancy: distance to its two nearest keyframes
-            d = sum(sorted(pose_distance(kfs[i].T_world_cam, kfs[j].T_world_cam, depth)
-                           for j in range(len(kfs)) if j != i)[:2])
+        n = len(kfs)
+        if n < 2:
+            return best
+        dist = pose_distances(np.stack([k.T_world_cam for k in kfs]), depth)
+        np.fill_diagonal(dist, np.inf)
+        # redundancy: distance to its two nearest keyframes
+        near = np.sort(dist[:-1], axis=1)[:, :min(2, n - 1)].sum(axis=1)
+        for i, d in enumerate(near.tolist()):
             if d < best_d - 1e-12:
                 best, best_d = i, d
         return best

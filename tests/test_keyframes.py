@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 from lite_vo.camera import PinholeIntrinsics
-from lite_vo.geometry import make_pose
-from lite_vo.keyframes import Keyframe, KeyframeStore
+from lite_vo.geometry import exp_se3, make_pose
+from lite_vo.keyframes import Keyframe, KeyframeStore, pose_distance, pose_distances
 
 CAM = PinholeIntrinsics(60.0, 60.0, 31.5, 23.5, 64, 48)
 
@@ -37,6 +37,37 @@ def test_memory_stays_within_bound_on_a_long_run():
     xs = sorted(k.T_world_cam[0, 3] for k in st)
     assert xs[-1] - xs[0] > 8.0                           # thinning keeps the whole path, not the recent past
     assert st.snapshot()[-1].index == 499
+
+
+def test_pose_distances_match_pose_distance_pairwise():
+    rng = np.random.default_rng(5)
+    poses = np.stack([exp_se3(rng.normal(size=6) * 0.4) for _ in range(12)])
+    d = pose_distances(poses, 1.7)
+    naive = np.array([[pose_distance(a, b, 1.7) for b in poses] for a in poses])
+    off = ~np.eye(12, dtype=bool)
+    np.testing.assert_allclose(d[off], naive[off], rtol=0, atol=1e-12)
+
+
+def _thin_index_naive(kfs):
+    """The thinning rule written out pair by pair (the store's twin): the most redundant keyframe."""
+    depth = kfs[-1].median_depth
+    best, best_d = 0, np.inf
+    for i in range(len(kfs) - 1):
+        d = sum(sorted(pose_distance(kfs[i].T_world_cam, kfs[j].T_world_cam, depth)
+                       for j in range(len(kfs)) if j != i)[:2])
+        if d < best_d - 1e-12:
+            best, best_d = i, d
+    return best
+
+
+def test_thinning_drops_the_keyframe_the_pairwise_rule_picks():
+    rng = np.random.default_rng(2)
+    for n in (2, 3, 9):
+        st = KeyframeStore(max_keyframes=1000)
+        for i in range(n):
+            kf = _kf(i, float(rng.normal()))
+            st.add(kf.with_pose(exp_se3(rng.normal(size=6) * 0.3)))
+        assert st._thin_index() == _thin_index_naive(st.snapshot())
 
 
 def test_old_scale_thinned_first_and_corrections_move_keyframes():

@@ -180,8 +180,8 @@ def _random_state(rng, h, w, frac_valid=0.6):
     }
 
 
-@pytest.mark.parametrize("stride", [1, 3])
-def test_observe_kernel_matches_naive(tex, stride):
+@pytest.mark.parametrize("stride,row_groups", [(1, 1), (3, 1), (1, 3)])
+def test_observe_kernel_matches_naive(tex, stride, row_groups):
     rng = np.random.default_rng(7)
     Kc = K_SMALL
     T_cur = pose(tx=0.08, ty=0.02, rot=(0.0, 0.01, 0.0))
@@ -207,7 +207,7 @@ def test_observe_kernel_matches_naive(tex, stride):
     a = {k: v.copy() for k, v in st.items()}
     status = np.zeros((48, 64), np.int8)
     kernels.observe_kernel(cur, gx, gy, mg, RefFrames(refs, slots, ids, Rs, ts, cs, res, aff), _ms(a), _cam(Kc), prm,
-                           stride, 1 if stride > 1 else 0, 64, status)
+                           stride, 1 if stride > 1 else 0, 64, status, row_groups)
     b = {k: v.copy() for k, v in st.items()}
     nstatus = naive.observe(cur, gx, gy, mg, refs, slots, ids, Rs, ts, cs, res, aff, b, Kc.fx, Kc.fy, Kc.cx, Kc.cy,
                             prm, stride, 1 if stride > 1 else 0, 64)
@@ -648,3 +648,17 @@ def test_exposure_changes_give_the_same_depth_when_compensated(tex):
     assert np.median(np.abs(d_e[both] - d_c[both]) / d_c[both]) < 0.002
     # uncompensated: fewer successful stereo updates in the last iteration
     assert runs["ignored"][1].updated < 0.8 * runs["compensated"][1].updated
+
+
+def test_interleaved_rows_visit_every_row_once_spread_over_the_image():
+    from lite_vo.mapping._kernels import interleaved_rows
+    for lo, hi, block, groups in ((3, 237, 8, 2), (3, 117, 8, 3), (0, 10, 3, 2), (3, 4, 8, 2), (5, 5, 8, 2),
+                                  (0, 17, 4, 4), (3, 20, 8, 1)):
+        rows = interleaved_rows(lo, hi, block, groups)
+        assert sorted(rows.tolist()) == list(range(lo, hi))
+    np.testing.assert_array_equal(interleaved_rows(3, 40, 8, 1), np.arange(3, 40))   # one thread: top to bottom
+    rows = interleaved_rows(3, 237, 8, 2)
+    first_half, second_half = rows[:len(rows) // 2], rows[len(rows) // 2:]
+    # each half of the order (what one of two threads gets) has a block from every 16 rows
+    assert {int(y - 3) // 16 for y in first_half} == {int(y - 3) // 16 for y in second_half}
+    assert np.all(np.diff(first_half[:8]) == 1)                   # rows inside a block stay consecutive

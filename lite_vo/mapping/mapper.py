@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from ..camera import PinholeIntrinsics
@@ -414,7 +415,8 @@ class Mapper:
                 prm = prm.copy()
                 prm[kernels.P_SIGMA_I2] = sigma * sigma
             kernels.observe_kernel(cur.image, cur.gx, cur.gy, cur.maxgrad, self._reference_frames(), s, self._cam,
-                                   prm, int(stride), int(self._iteration % stride), scratch, status)
+                                   prm, int(stride), int(self._iteration % stride), scratch, status,
+                                   int(numba.get_num_threads()))
         counts = np.bincount(status.ravel().astype(np.int64), minlength=9)
         stats.no_epipolar, stats.skipped_converged = int(counts[7]), int(counts[8])
         stats.updated, stats.created, stats.inconsistent = int(counts[1]), int(counts[2]), int(counts[3])
