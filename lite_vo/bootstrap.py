@@ -163,8 +163,7 @@ def bundle_adjust(K: np.ndarray, T: np.ndarray, rho: np.ndarray, uv: np.ndarray,
                 return T, rho
             dr = -(gr + np.einsum("fin,fi->n", Hpr, dp)) / Hrr_d
             T_new = T.copy()
-            for f in range(F):
-                T_new[f + 1] = exp_se3(dp[f]) @ T[f + 1]
+            T_new[1:] = exp_se3(dp) @ T[1:]
             rho_new = rho + dr
             r2, q2, z2, Rr2, ok2 = residuals(T_new, rho_new)
             c2 = cost(r2, ok2)
