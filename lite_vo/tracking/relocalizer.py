@@ -28,7 +28,7 @@ passes the same tests).
 
 Keyframes are duck-typed (``index``, ``T_world_cam``, ``camera``, ``image`` uint8, ``idepth`` and
 ``idepth_var`` NaN where empty, as :class:`lite_vo.keyframes.Keyframe`). Tracking thread only.
-Imports numpy, cv2, lite_vo (geometry, image) and this package only.
+Imports numpy, cv2, lite_vo (geometry, image, keyframes) and this package only.
 """
 from __future__ import annotations
 
@@ -41,6 +41,7 @@ import numpy as np
 
 from ..geometry import inverse_se3, project_to_se3
 from ..image import image_pyramid
+from ..keyframes import pose_distance
 from .config import TrackingConfig
 from .reference import TrackingReference
 from .tracker import Tracker, TrackingResult
@@ -64,12 +65,6 @@ def thumbnail(image: np.ndarray) -> np.ndarray:
     t = cv2.resize(np.asarray(image, dtype=np.float32), THUMB_SIZE, interpolation=cv2.INTER_AREA)
     t -= t.mean()
     return t / max(float(t.std()), 1e-6)
-
-
-def _pose_distance(T_a: np.ndarray, T_b: np.ndarray, depth: float) -> float:
-    dt = float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3])) / max(depth, 1e-12)
-    c = (np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1.0) / 2.0
-    return dt + float(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
 def _score(tr: TrackingResult) -> float:
@@ -168,7 +163,7 @@ class Relocalizer:
         if T_world_last is not None and c.reloc_pose_candidates > 0:
             depths = [k.median_depth for k in kfs if np.isfinite(getattr(k, "median_depth", np.nan))]
             depth = float(np.median(depths)) if depths else 1.0
-            by_pose = sorted(kfs, key=lambda k: _pose_distance(k.T_world_cam, T_world_last, depth))
+            by_pose = sorted(kfs, key=lambda k: pose_distance(k.T_world_cam, T_world_last, depth))
             out += by_pose[:c.reloc_pose_candidates]
         if c.reloc_thumb_candidates > 0:
             t = thumbnail(image)
