@@ -100,8 +100,19 @@ def _skew(q: np.ndarray) -> np.ndarray:
                      np.stack([-q[..., 1], q[..., 0], z], -1)], -2)
 
 
+def _unit_median_depth(T: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The same reconstruction at the scale where the median depth of the points in front is 1."""
+    good = rho > 0
+    if not good.any():
+        return T, rho
+    s = float(np.median(1.0 / rho[good]))
+    T = T.copy()
+    T[:, :3, 3] /= s
+    return T, rho * s
+
+
 def bundle_adjust(K: np.ndarray, T: np.ndarray, rho: np.ndarray, uv: np.ndarray, vis: np.ndarray,
-                  iters: int = 15, huber_px: float = 1.0):
+                  iters: int = 100, huber_px: float = 1.0, rel_tol: float = 1e-6, rounds: int = 3):
     """Sparse two-view-start bundle adjustment: corners anchored in view 0 by inverse depth.
 
     ``T``: (F, 4, 4) poses mapping view 0 into each view (``T[0]`` is the identity and stays);
@@ -109,8 +120,27 @@ def bundle_adjust(K: np.ndarray, T: np.ndarray, rho: np.ndarray, uv: np.ndarray,
     (F, N, 2) pixels; ``vis``: (F, N) observations. Levenberg-Marquardt on the reprojection error
     (Huber weights), the inverse depths eliminated by the Schur complement (one unknown each), so
     every view's pose is estimated from all views jointly; the rotation-translation ambiguity of a
-    short baseline is what a view-by-view PnP cannot resolve. The scale (a gauge freedom) is
-    restored to median depth 1 at the end. Returns the poses and inverse depths."""
+    short baseline is what a view-by-view PnP cannot resolve. The scale (a gauge freedom) is held
+    at median depth 1 after every accepted step. Runs until a step lowers the cost by less than
+    ``rel_tol`` of it (or ``iters`` steps): along the flat valley of a short baseline, a fixed small
+    number of steps stops at an arbitrary point of it. A point is projected as ``rho * (R X + t)``
+    (``X = ray / rho``): smooth through infinity, so no corner leaves the cost by crossing it;
+    corners that end behind the first view (``rho <= 0``, an outlier track) are dropped and the
+    rest adjusted again (up to ``rounds`` times). Returns the poses and inverse depths (of every
+    corner; the dropped ones keep their last value)."""
+    rho = rho.copy()
+    use = np.ones(len(rho), bool)
+    for _ in range(rounds):
+        T, rho[use] = _levenberg_marquardt(K, T, rho[use], uv[:, use], vis[:, use], iters, huber_px, rel_tol)
+        behind = use & (rho <= 0)
+        if not behind.any() or (use & ~behind).sum() < 6:
+            break
+        use &= ~behind
+    return T, rho
+
+
+def _levenberg_marquardt(K, T, rho, uv, vis, iters, huber_px, rel_tol):
+    """:func:`bundle_adjust`'s inner loop on one set of corners."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     ray = np.stack([(uv[0, :, 0] - cx) / fx, (uv[0, :, 1] - cy) / fy, np.ones(uv.shape[1])], -1)  # (N, 3)
     obs, ob = uv[1:], vis[1:].astype(np.float64)
@@ -119,9 +149,9 @@ def bundle_adjust(K: np.ndarray, T: np.ndarray, rho: np.ndarray, uv: np.ndarray,
 
     def residuals(T, rho):
         Rr = np.einsum("fij,nj->fni", T[1:, :3, :3], ray)            # R ray, (F, N, 3)
-        q = Rr / rho[None, :, None] + T[1:, None, :3, 3]
+        q = Rr + rho[None, :, None] * T[1:, None, :3, 3]              # rho * (R X + t)
         z = q[..., 2]
-        ok = (z > 1e-6) & (rho > 0)[None, :]
+        ok = z > 1e-6
         zs = np.where(ok, z, 1.0)
         r = np.stack([fx * q[..., 0] / zs + cx, fy * q[..., 1] / zs + cy], -1) - obs
         return r, q, zs, Rr, ok
@@ -132,9 +162,11 @@ def bundle_adjust(K: np.ndarray, T: np.ndarray, rho: np.ndarray, uv: np.ndarray,
         h = np.where(e <= huber_px, 0.5 * e * e, huber_px * (e - 0.5 * huber_px))
         return float((w * h).sum())
 
+    T, rho = _unit_median_depth(T, rho)
     r, q, z, Rr, ok = residuals(T, rho)
     c = cost(r, ok)
     lam = 1e-3
+    converged = False
     for _ in range(iters):
         e = np.linalg.norm(r, axis=2)
         w = ob * ok * np.where(e <= huber_px, 1.0, huber_px / np.maximum(e, 1e-12))        # (F, N)
@@ -143,8 +175,8 @@ def bundle_adjust(K: np.ndarray, T: np.ndarray, rho: np.ndarray, uv: np.ndarray,
         dpi[..., 0, 2] = -fx * q[..., 0] / z ** 2
         dpi[..., 1, 1] = fy / z
         dpi[..., 1, 2] = -fy * q[..., 1] / z ** 2
-        Jp = np.concatenate([dpi, -dpi @ _skew(q)], axis=-1)                              # (F, N, 2, 6)
-        Jr = np.einsum("fnij,fnj->fni", dpi, -Rr / rho[None, :, None] ** 2)               # (F, N, 2)
+        Jp = np.concatenate([dpi * rho[None, :, None, None], -dpi @ _skew(q)], axis=-1)   # (F, N, 2, 6)
+        Jr = np.einsum("fnij,fj->fni", dpi, T[1:, :3, 3])                                 # (F, N, 2)
         Hpp = np.einsum("fnki,fn,fnkj->fij", Jp, w, Jp)
         Hpr = np.einsum("fnki,fn,fnk->fin", Jp, w, Jr)                                    # (F, 6, N)
         Hrr = np.einsum("fnk,fn,fnk->n", Jr, w, Jr)
@@ -168,19 +200,17 @@ def bundle_adjust(K: np.ndarray, T: np.ndarray, rho: np.ndarray, uv: np.ndarray,
             r2, q2, z2, Rr2, ok2 = residuals(T_new, rho_new)
             c2 = cost(r2, ok2)
             if c2 < c and np.isfinite(c2):
-                T, rho, r, q, z, Rr, ok, c = T_new, rho_new, r2, q2, z2, Rr2, ok2, c2
+                converged = c - c2 < rel_tol * c
+                T, rho = _unit_median_depth(T_new, rho_new)      # the cost does not change
+                r, q, z, Rr, ok = residuals(T, rho)
+                c = c2
                 lam = max(lam / 3.0, 1e-7)
                 break
             lam *= 5.0
             if lam > 1e4:
                 break
-        if lam > 1e4:
+        if lam > 1e4 or converged:
             break
-    good = rho > 0
-    if good.any():
-        s = float(np.median(1.0 / rho[good]))
-        T[:, :3, 3] /= s
-        rho = rho * s
     return T, rho
 
 
