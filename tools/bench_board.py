@@ -143,6 +143,18 @@ def machine() -> dict:
     return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(), "machine": platform.machine()}
 
 
+#: packages outside the core install (extras and development tools) that a board install does not have
+OPTIONAL_PACKAGES = ("pybullet", "trimesh", "moderngl", "matplotlib", "rerun", "rosbags", "pytest")
+
+
+def environment() -> str:
+    """Which Python environment ran the benchmark: core-only (what a board gets) or with extras."""
+    import importlib.util
+    extra = [p for p in OPTIONAL_PACKAGES if importlib.util.find_spec(p) is not None]
+    return (f"`{sys.prefix}`, " + ("core only (`pip install .`, no extras)" if not extra
+                                   else "with " + ", ".join(extra) + " installed"))
+
+
 def write_markdown(path: Path, res: dict) -> None:
     runs, med = res["runs"], res["median"]
     m = res["machine"]
@@ -157,7 +169,8 @@ def write_markdown(path: Path, res: dict) -> None:
          f"Each run: `{res['run_command']}` (a fresh process; after one `lite-vo warmup`, "
          f"{res['warmup_s']:.1f} s, so every kernel loads from numba's cache).", "",
          f"Machine: {m['cpu']}, {m['cores']} logical cores, Python {m['python']}, {m['machine']}; "
-         f"load average {res['loadavg_before']} before the runs, {res['loadavg_after']} after.", ""]
+         f"load average {res['loadavg_before']} before the runs, {res['loadavg_after']} after. "
+         f"Python environment: {res['environment']}.", ""]
     if res.get("note"):
         L += [f"**Note:** {res['note']}", ""]
     L += ["| what | " + " | ".join(f"run {i + 1}" for i in range(len(runs))) + " | median | target | met |",
@@ -233,7 +246,7 @@ def main(argv=None) -> int:
                           + (f" --max-frames {args.max_frames}" if args.max_frames else ""),
            "warmup_s": warmup_s, "loadavg_before": load_before,
            "loadavg_after": " / ".join(f"{x:.2f}" for x in os.getloadavg()),
-           "machine": machine(), "note": args.note, "targets": TARGETS, "runs": runs, "median": median}
+           "machine": machine(), "environment": environment(), "note": args.note, "targets": TARGETS, "runs": runs, "median": median}
     write_markdown(args.out, res)
     print(f"wrote {args.out}")
     return 0
