@@ -177,7 +177,6 @@ def test_bundle_adjust_resolves_the_rotation_that_pnp_gets_wrong_on_a_short_base
     assert np.median(np.abs(s / rho - X[:, 2]) / X[:, 2]) < 0.01
 
 
-
 def test_bundle_adjust_converges_to_one_answer_along_the_flat_valley_of_a_short_baseline():
     """40 corners with 1 px noise, a baseline of 2 % of the depth (like the synthetic room's start at
     frame 103, where 15 fixed steps stopped 0.5 deg from the truth and corners could leave the cost
