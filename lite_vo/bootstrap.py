@@ -148,13 +148,12 @@ def _levenberg_marquardt(K, T, rho, uv, vis, iters, huber_px, rel_tol):
     T, rho = T.copy(), rho.copy()
 
     def residuals(T, rho):
-        Rr = np.einsum("fij,nj->fni", T[1:, :3, :3], ray)            # R ray, (F, N, 3)
-        q = Rr + rho[None, :, None] * T[1:, None, :3, 3]              # rho * (R X + t)
+        q = np.einsum("fij,nj->fni", T[1:, :3, :3], ray) + rho[None, :, None] * T[1:, None, :3, 3]  # rho (R X + t)
         z = q[..., 2]
         ok = z > 1e-6
         zs = np.where(ok, z, 1.0)
         r = np.stack([fx * q[..., 0] / zs + cx, fy * q[..., 1] / zs + cy], -1) - obs
-        return r, q, zs, Rr, ok
+        return r, q, zs, ok
 
     def cost(r, ok):
         e = np.linalg.norm(r, axis=2)
@@ -163,7 +162,7 @@ def _levenberg_marquardt(K, T, rho, uv, vis, iters, huber_px, rel_tol):
         return float((w * h).sum())
 
     T, rho = _unit_median_depth(T, rho)
-    r, q, z, Rr, ok = residuals(T, rho)
+    r, q, z, ok = residuals(T, rho)
     c = cost(r, ok)
     lam = 1e-3
     converged = False
@@ -197,12 +196,12 @@ def _levenberg_marquardt(K, T, rho, uv, vis, iters, huber_px, rel_tol):
             T_new = T.copy()
             T_new[1:] = exp_se3(dp) @ T[1:]
             rho_new = rho + dr
-            r2, q2, z2, Rr2, ok2 = residuals(T_new, rho_new)
+            r2, _, _, ok2 = residuals(T_new, rho_new)
             c2 = cost(r2, ok2)
             if c2 < c and np.isfinite(c2):
                 converged = c - c2 < rel_tol * c
                 T, rho = _unit_median_depth(T_new, rho_new)      # the cost does not change
-                r, q, z, Rr, ok = residuals(T, rho)
+                r, q, z, ok = residuals(T, rho)
                 c = c2
                 lam = max(lam / 3.0, 1e-7)
                 break
