@@ -1,5 +1,6 @@
-"""The compact keyframe: every public array decodes exactly to what it was made from, ``nbytes`` is
-what is stored, and the store's bound counts those bytes."""
+"""The compact keyframe: every public array decodes exactly to what it was made from (the colour image,
+stored as a JPEG, within a grey level or two), ``nbytes`` is what is stored, and the store's bound counts
+those bytes."""
 from __future__ import annotations
 
 import numpy as np
@@ -25,8 +26,21 @@ def _inputs(seed: int, colour: bool = True):
     var[5, 5] = np.nan
     d[5, 5] = 1.0
     image = rng.integers(0, 256, (H, W), dtype=np.uint8)
-    color = rng.integers(0, 256, (H, W, 3), dtype=np.uint8) if colour else None
+    color = None
+    if colour:      # a camera image: smooth shading, a few sharp coloured edges, a little noise
+        yy, xx = np.mgrid[0:H, 0:W]
+        color = np.stack([40 + 2 * xx, 60 + 3 * yy, 200 - xx - yy], -1).astype(np.float64)
+        color[H // 3:, W // 2:] = rng.uniform(0, 255, 3)
+        color += rng.normal(0, 1, color.shape)
+        color = np.clip(color + 0.5, 0, 255).astype(np.uint8)
     return image, d, var, color
+
+
+def _close_colour(a, b) -> bool:
+    """The stored JPEG's round trip (quality 95, 4:4:4: mean error 0.9, at most 5 grey levels here):
+    a mean error below 1.05, none above 10. Quality 75 (mean 1.2) or 4:2:0 chroma (edges off by 18-38) fail."""
+    err = np.abs(a.astype(np.int16) - b.astype(np.int16))
+    return a.shape == b.shape and err.mean() < 1.05 and err.max() <= 10
 
 
 def _kf(seed: int, x: float = 0.0, colour: bool = True) -> Keyframe:
@@ -45,7 +59,7 @@ def test_every_attribute_round_trips_exactly(colour):
     assert np.array_equal(kf.idepth_var, np.where(ok, var, np.nan), equal_nan=True)
     assert np.isnan(kf.idepth_var[5, 5]) and kf.idepth[5, 5] == 1.0   # a NaN variance survives as it was
     if colour:
-        assert kf.color.dtype == np.uint8 and np.array_equal(kf.color, color)
+        assert kf.color.dtype == np.uint8 and _close_colour(kf.color, color)
     else:
         assert kf.color is None
     for a in (kf.image, kf.idepth, kf.idepth_var) + ((kf.color,) if colour else ()):
@@ -57,7 +71,7 @@ def test_every_attribute_round_trips_exactly(colour):
 def test_float_images_are_rounded_as_before():
     image, d, var, color = _inputs(4)
     kf = Keyframe.make(0, 0.0, np.eye(4), CAM, image.astype(np.float32) + 0.4, d, var, color.astype(np.float64) - 0.4)
-    assert np.array_equal(kf.image, image) and np.array_equal(kf.color, color)
+    assert np.array_equal(kf.image, image) and _close_colour(kf.color, color)
 
 
 def test_points_match_the_dense_computation():
@@ -78,10 +92,10 @@ def test_points_match_the_dense_computation():
 def test_nbytes_is_the_stored_size(colour):
     kf = _kf(6, colour=colour)
     n_valid = int(np.count_nonzero(np.isfinite(kf.idepth)))
-    png = kf.color_png.nbytes if colour else 0
-    assert kf.nbytes == H * W + (H * W + 7) // 8 + 2 * 4 * n_valid + 16 * 8 + png
+    jpg = kf.color_jpg.nbytes if colour else 0
+    assert kf.nbytes == H * W + (H * W + 7) // 8 + 2 * 4 * n_valid + 16 * 8 + jpg
     assert kf.nbytes == sum(a.nbytes for a in (kf.image, kf.valid_bits, kf.idepth_values, kf.var_values,
-                                               kf.T_world_cam)) + png
+                                               kf.T_world_cam)) + jpg
     dense = kf.image.nbytes + kf.idepth.nbytes + kf.idepth_var.nbytes + (kf.color.nbytes if colour else 0)
     assert kf.nbytes < 0.75 * dense
 

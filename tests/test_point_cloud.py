@@ -26,9 +26,10 @@ def test_colours_come_from_the_right_pixels():
     cloud = scene_cloud(kfs)
     assert len(cloud.points) > 3000
     u, v = cloud.pixel[:, 0], cloud.pixel[:, 1]
-    assert np.array_equal(cloud.colors[:, 0], np.full(len(u), 200))   # RGB order: R first
-    assert np.array_equal(cloud.colors[:, 1], (v * 5).astype(np.uint8))
-    assert np.array_equal(cloud.colors[:, 2], (u * 3).astype(np.uint8))
+    # RGB order (R first); keyframe colours are stored as JPEG (a grey level or two off): a point
+    # coloured from the neighbouring pixel would be off by 3 (u) or 5 (v) levels on average
+    err = np.abs(cloud.colors.astype(np.int16) - np.stack([np.full(len(u), 200), v * 5, u * 3], 1))
+    assert err.max() <= 3 and err.mean(axis=0).max() < 1.0, (err.max(axis=0), err.mean(axis=0))
     # and the point of that pixel is where the pixel looks (points are stored as float32: 1e-4 px, 1e-6 m)
     kf = {k.index: k for k in kfs}
     for j in (0, len(u) // 2, len(u) - 1):
