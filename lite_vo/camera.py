@@ -487,8 +487,23 @@ class Rectifier:
         return np.ascontiguousarray(img, dtype=np.float32)
 
     def color(self, bgr: np.ndarray) -> np.ndarray:
-        """Rectified, resized float32 (H, W, 3) image of a native 3-channel image, channel by channel."""
-        return np.dstack([self(np.ascontiguousarray(bgr[..., c])) for c in range(3)])
+        """Rectified, resized uint8 (H, W, 3) image of a native 3-channel uint8 image (all channels in one
+        pass, in uint8: for display, the point cloud and textures; the grey image goes through
+        :meth:`__call__`)."""
+        import cv2
+        nat = self.camera.intrinsics
+        img = np.asarray(bgr)
+        if img.ndim != 3 or img.shape[:2] != (nat.height, nat.width):
+            from .errors import InputError
+            raise InputError(f"colour image of shape {img.shape} does not match the camera's "
+                             f"{nat.width}x{nat.height} (expected {nat.height}x{nat.width}x3)")
+        if img.dtype != np.uint8:
+            img = np.clip(img.astype(np.float32) + 0.5, 0, 255).astype(np.uint8)
+        if not self._identity:
+            img = cv2.remap(img, self._map1, self._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if self.factor > 1:
+            img = cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
+        return np.array(img, dtype=np.uint8) if np.shares_memory(img, bgr) else img
 
     def depth(self, depth_m: np.ndarray) -> np.ndarray:
         """Depth image (metres, 0 or NaN = invalid) in the output geometry: for each output pixel the

@@ -324,6 +324,26 @@ def test_depth_resampling_nearest_valid_without_blending(cam):
     assert not rect.depth(np.zeros_like(depth)).any()
 
 
+@pytest.mark.parametrize("cam", [FR1, EUROC, FISHEYE], ids=["fr1", "euroc", "fisheye"])
+def test_colour_rectification_matches_the_grey_one_channel_by_channel(cam):
+    """Keyframe colours are rectified in one uint8 pass; each channel must land where the grey image
+    does (same geometry), within rounding."""
+    grey = np.clip(np.rint(_render_distorted(cam)), 0, 255).astype(np.uint8)
+    bgr = np.dstack([grey, 255 - grey, grey // 2])
+    rect = cam.rectifier(320, multiple_of=16)
+    out = rect.color(bgr)
+    k = rect.intrinsics
+    assert out.dtype == np.uint8 and out.shape == (k.height, k.width, 3)
+    for c in range(3):
+        ref = rect(np.ascontiguousarray(bgr[..., c]))
+        assert np.abs(out[..., c].astype(np.float32) - ref).max() <= 1.0
+    # the test can fail: a plain resize (ignoring the distortion) is far off
+    naive = cv2.resize(bgr, (k.width, k.height), interpolation=cv2.INTER_AREA)
+    assert np.abs(naive[..., 0].astype(np.float32) - rect(grey)).mean() > 5.0
+    with pytest.raises(InputError, match="colour image of shape"):
+        rect.color(bgr[:-1])
+
+
 def test_rectifier_rejects_wrong_image_size():
     rect = FR1.rectifier(320)
     with pytest.raises(InputError, match="does not match the camera's 640x480"):
