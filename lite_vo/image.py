@@ -20,6 +20,8 @@ Imports numpy and numba only (no other lite_vo module, no OpenCV).
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numba import njit
 
@@ -325,7 +327,14 @@ def bspline_coefficient_stack(img: np.ndarray, out: np.ndarray | None = None, pr
 
 
 def gaussian_kernel(sigma: float, truncate: float = 2.5) -> np.ndarray:
-    """Normalised 1-D Gaussian of std ``sigma`` px, radius ``ceil(truncate * sigma)`` (at least 1)."""
+    """Normalised 1-D Gaussian of std ``sigma`` px, radius ``ceil(truncate * sigma)`` (at least 1).
+    Cached (every frame blurs with the same few): the array is shared, do not modify it (it stays
+    writeable because numba compiles read-only arrays as another type)."""
+    return _gaussian_kernel(float(sigma), float(truncate))
+
+
+@functools.lru_cache(maxsize=64)
+def _gaussian_kernel(sigma: float, truncate: float) -> np.ndarray:
     r = max(1, int(np.ceil(truncate * sigma)))
     x = np.arange(-r, r + 1, dtype=np.float64)
     k = np.exp(-0.5 * (x / sigma) ** 2)
