@@ -100,17 +100,16 @@ def write_tum_folder(root: Path, n: int = 5, width: int = 64, height: int = 48, 
                      dt: float = 0.1, t0: float = 100.0, depth: bool = True, depth_offset: float = 0.01,
                      depth_scale: Optional[float] = 1000.0, depth_value_m: float = 2.0, gt: bool = True,
                      accelerometer: bool = True, calib: bool = True, colour: bool = True,
-                     dist: Sequence[float] = (), seed: int = 0, image_ext: str = "png") -> Path:
-    """A TUM RGB-D layout folder ``root/name`` with ``n`` frames (images as ``image_ext`` files); depth
-    timestamps shifted by ``depth_offset`` s; depth PNG = ``depth_value_m * depth_scale`` (TUM default
-    5000 if None)."""
+                     dist: Sequence[float] = (), seed: int = 0) -> Path:
+    """A TUM RGB-D layout folder ``root/name`` with ``n`` frames; depth timestamps shifted by
+    ``depth_offset`` s; depth PNG = ``depth_value_m * depth_scale`` (TUM default 5000 if None)."""
     import cv2
     folder = Path(root) / name
     (folder / "rgb").mkdir(parents=True)
     ts = t0 + dt * np.arange(n)
     rgb_lines = ["# color images", "# timestamp filename"]
     for i, t in enumerate(ts):
-        fn = f"rgb/{t:.6f}.{image_ext}"
+        fn = f"rgb/{t:.6f}.png"
         cv2.imwrite(str(folder / fn), textured_image(width, height, seed + i, colour=colour))
         rgb_lines.append(f"{t:.6f} {fn}")
     (folder / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")

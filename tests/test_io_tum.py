@@ -276,33 +276,6 @@ def test_colour_frames_keep_the_decoded_colour_image(tmp_path):
     assert g.color is None and g.image.shape == (48, 64)
 
 
-def test_jpeg_frames_give_the_luma_plane_and_can_defer_the_colour(tmp_path):
-    """A JPEG's grey image is its own luma plane, whether or not the colour is decoded with it; with
-    ``defer_color`` the colour is decoded only when asked for (keyframes), and equals the eager one."""
-    folder = write_tum_folder(tmp_path, n=3, colour=True, image_ext="jpg")
-    seq = open_sequence(folder)
-    path = sorted((folder / "rgb").iterdir())[1]
-    eager, lazy = seq.frame(1), seq.frame(1, defer_color=True)
-    luma = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    colour = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    np.testing.assert_array_equal(eager.image, luma)
-    np.testing.assert_array_equal(lazy.image, luma)
-    assert np.abs(luma.astype(int) - cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY)).max() <= 3   # the same image
-    np.testing.assert_array_equal(eager.color, colour)
-    assert lazy.color is None and eager.color_reader is None
-    np.testing.assert_array_equal(lazy.color_reader(), colour)
-    assert [f.color for f in seq.frames(1, defer_color=True)] == [None, None]
-    path.unlink()                                 # gone after the frame was read: no colour, a warning
-    assert lazy.color_reader() is None
-    grey = write_tum_folder(tmp_path, n=2, colour=False, name="grey", image_ext="jpg")
-    g = open_sequence(grey).frame(0, defer_color=True)
-    assert g.color_reader() is None and g.image.shape == (48, 64)
-    png = write_tum_folder(tmp_path, n=2, colour=True, name="png")   # decoded once: the reader hands it out
-    p_eager, p_lazy = open_sequence(png).frame(0), open_sequence(png).frame(0, defer_color=True)
-    np.testing.assert_array_equal(p_lazy.image, p_eager.image)
-    np.testing.assert_array_equal(p_lazy.color_reader(), p_eager.color)
-
-
 @pytest.mark.parametrize("text, expect", [
     ("500 500 320\n640 480\n", "line 1: expected 'fx fy cx cy [k1 k2 p1 p2 [k3]]' (4, 8 or 9 values), got 3"),
     ("500 500 320 240\n640\n", "line 2: expected 'width height'"),

@@ -128,32 +128,3 @@ def test_store_bound_comes_from_the_profile(synth_small):
         sizes[mb] = (len(kfs), sum(k.nbytes for k in kfs))
     assert sizes[1.5][1] <= 1.5 * 2**20 and sizes[1.5][0] < sizes[32.0][0]
     assert lite_vo.load_profile("board").system.keyframe_memory_mb == 16.0
-
-
-def test_vo_decodes_a_deferred_colour_only_for_keyframes(synth_small):
-    """``VisualOdometry.process(color=reader)``: the reader is called once per keyframe and never for
-    the other frames (what `lite-vo run` relies on to skip colour decoding); keyframes keep the colour."""
-    import lite_vo
-    from lite_vo.io import open_sequence
-
-    seq = open_sequence(synth_small)
-    cfg = lite_vo.load_profile("phone", ['system.init="random"', 'system.mode="sync"'])
-    calls = []
-
-    def reader_of(fr):
-        def read():
-            calls.append(fr.index)
-            return np.dstack([fr.image, fr.image // 2, 255 - fr.image])
-        return read
-
-    with lite_vo.VisualOdometry(seq.camera, cfg, pose_source="given") as vo:
-        for fr in seq:
-            T = seq.groundtruth.poses[seq.groundtruth.nearest(fr.timestamp, 0.02)]
-            vo.process(fr.image, fr.timestamp, T_world_cam=T, color=reader_of(fr))
-        kfs = vo.keyframes.snapshot()
-    assert len(kfs) >= 3 and len(calls) == len(set(calls)) == len(kfs) < len(seq) // 2
-    assert sorted(calls) == [k.index for k in kfs]
-    for k in kfs:
-        c = k.color
-        assert c is not None and c.shape == k.image.shape + (3,)
-        assert np.abs(c[..., 0].astype(int) - k.image).mean() < 2.0      # the colour of that frame

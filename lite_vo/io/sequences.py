@@ -14,12 +14,11 @@ Imports numpy, cv2 (lazily), ``lite_vo.camera``, ``lite_vo.geometry`` and the io
 from __future__ import annotations
 
 import functools
-import logging
 import os
 import re
 import time
 from pathlib import Path
-from typing import Callable, Iterator, Optional, Union
+from typing import Iterator, Optional, Union
 
 import numpy as np
 
@@ -31,8 +30,6 @@ from .calib_formats import load_calibration, read_calibration, read_euroc_camera
 from .base import Sequence
 from .trajectory import read_euroc_groundtruth, read_trajectory
 from .types import Accelerometer, Frame
-
-log = logging.getLogger(__name__)
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv")
@@ -74,64 +71,19 @@ def _grey_and_colour(img: np.ndarray) -> tuple[np.ndarray, Optional[np.ndarray]]
     return grey, (None if _is_grey(img) else img)
 
 
-def _decode(path: Path, flags: int) -> np.ndarray:
-    """``cv2.imread`` with ``flags``; InputError naming the file when it cannot be read."""
+def _imread(path: Path) -> tuple[np.ndarray, Optional[np.ndarray]]:
+    """(grey, colour or None) of an image file, decoded once; InputError naming the file."""
     import cv2
-    img = cv2.imread(str(path), flags)
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         if not path.is_file():
             raise InputError(f"{path}: image not found")
         raise InputError(f"{path}: cannot read image (corrupt, truncated or unsupported format)")
-    return img
-
-
-#: JPEG files: the grey image is the file's own luma plane (libjpeg outputs it without the colour
-#: planes: a third of the cost of a colour decode at 640x480), the colour image a separate decode
-_LUMA_FILES = (".jpg", ".jpeg")
-
-
-def _imread_luma(path: Path) -> np.ndarray:
-    import cv2
-    return _decode(path, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
-
-
-def _imread_jpeg_colour(path: Path) -> Optional[np.ndarray]:
-    """The BGR image of a JPEG file, None when the file is grey."""
-    import cv2
-    return _grey_and_colour(_decode(path, cv2.IMREAD_UNCHANGED))[1]
-
-
-def _imread(path: Path) -> tuple[np.ndarray, Optional[np.ndarray]]:
-    """(grey, colour or None) of an image file; InputError naming the file. The grey image of a JPEG
-    is its luma plane (the same whether or not the colour is wanted, see :func:`_imread_grey_first`),
-    of other formats the grey conversion of the decoded image."""
-    import cv2
-    if path.suffix.lower() in _LUMA_FILES:
-        return _imread_luma(path), _imread_jpeg_colour(path)
-    img = _decode(path, cv2.IMREAD_UNCHANGED)
     if img.dtype == np.uint16:
         img = (img.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
     elif img.dtype != np.uint8:
         raise InputError(f"{path}: unsupported image type {img.dtype} (expected 8-bit grey or colour)")
     return _grey_and_colour(img)
-
-
-def _imread_grey_first(path: Path) -> tuple[np.ndarray, Optional[Callable[[], Optional[np.ndarray]]]]:
-    """(grey, colour reader or None) of an image file: the grey image now (as :func:`_imread` gives
-    it), the colour only when the reader is called (JPEG: decoded then; None for a grey file; a file
-    that cannot be read any more gives None and a warning). Other formats are decoded once, now."""
-    if path.suffix.lower() not in _LUMA_FILES:
-        grey, colour = _imread(path)
-        return grey, (None if colour is None else (lambda: colour))
-    return _imread_luma(path), functools.partial(_read_colour_later, path)
-
-
-def _read_colour_later(path: Path) -> Optional[np.ndarray]:
-    try:
-        return _imread_jpeg_colour(path)
-    except InputError as err:
-        log.warning("no colour for this frame: %s", err)
-        return None
 
 
 def _check_size(path, img: np.ndarray, camera: Camera, what: str, calib_source: str = "") -> None:
@@ -186,13 +138,9 @@ class FileSequence(Sequence):
     def __len__(self) -> int:
         return len(self.image_paths)
 
-    def _read(self, i: int, defer_depth: bool = False, defer_color: bool = False) -> Frame:
+    def _read(self, i: int, defer_depth: bool = False) -> Frame:
         """Frame ``i``; InputError (naming the file) when it cannot be read."""
-        colour, colour_reader = None, None
-        if defer_color:
-            img, colour_reader = _imread_grey_first(self.image_paths[i])
-        else:
-            img, colour = _imread(self.image_paths[i])
+        img, colour = _imread(self.image_paths[i])
         _check_size(self.image_paths[i], img, self.camera, "image", self.calib_source)
         depth, reader = None, None
         if self.depth_paths is not None and self.depth_paths[i] is not None:
@@ -201,21 +149,18 @@ class FileSequence(Sequence):
                 reader = functools.partial(_imread_depth, *args)
             else:
                 depth = _imread_depth(*args)
-        return Frame(i, float(self.timestamps[i]), img, depth, colour, depth_reader=reader,
-                     color_reader=colour_reader)
+        return Frame(i, float(self.timestamps[i]), img, depth, colour, depth_reader=reader)
 
-    def frame(self, i: int, defer_depth: bool = False, defer_color: bool = False) -> Frame:
+    def frame(self, i: int, defer_depth: bool = False) -> Frame:
         """Frame ``i`` (random access; reads the files now). A file that cannot be read gives a
         frame with ``image=None`` and ``error`` set. ``defer_depth``: do not decode the depth
-        image now; ``Frame.depth_reader`` reads it when called (most frames of a run never need it).
-        ``defer_color``: decode only the grey image now (a JPEG's luma plane); ``color`` stays None and
-        ``Frame.color_reader`` decodes the colour image when called (only keyframes need it)."""
+        image now; ``Frame.depth_reader`` reads it when called (most frames of a run never need it)."""
         n = len(self)
         if not -n <= i < n:
             raise IndexError(f"frame {i} out of range for {n} frames")
         i %= n
         try:
-            return self._read(i, defer_depth, defer_color)
+            return self._read(i, defer_depth)
         except InputError as err:
             msg = str(err)
             if i in self._listed_in and "not found" in msg:
@@ -226,10 +171,10 @@ class FileSequence(Sequence):
         for i in range(len(self)):
             yield self.frame(i)
 
-    def frames(self, start: int = 0, defer_depth: bool = False, defer_color: bool = False) -> Iterator[Frame]:
-        """Frames ``start ..`` in order (see :meth:`frame` for ``defer_depth`` and ``defer_color``)."""
+    def frames(self, start: int = 0, defer_depth: bool = False) -> Iterator[Frame]:
+        """Frames ``start ..`` in order (see :meth:`frame` for ``defer_depth``)."""
         for i in range(start, len(self)):
-            yield self.frame(i, defer_depth, defer_color)
+            yield self.frame(i, defer_depth)
 
     def check_first_frame(self, scan: int = 30) -> None:
         """Open-time check: the first readable frame (among the first ``scan``) must match the

@@ -23,8 +23,6 @@ class Frame:
     frames instead of stopping, so the caller decides how many it tolerates. ``depth_reader``: when
     the frame was read with deferred depth (:meth:`FileSequence.frame` ``defer_depth=True``),
     ``depth`` is None and calling this reads it (``InputError`` naming the file if it cannot).
-    ``color_reader``: when the frame was read with deferred colour (``defer_color=True``), ``color`` is
-    None and calling this decodes the colour image (None for a grey file).
     """
     index: int
     timestamp: float
@@ -33,7 +31,6 @@ class Frame:
     color: Optional[np.ndarray] = None
     error: Optional[str] = None
     depth_reader: Optional[Callable[[], np.ndarray]] = None
-    color_reader: Optional[Callable[[], Optional[np.ndarray]]] = None
 
     @property
     def ok(self) -> bool:
