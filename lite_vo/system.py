@@ -636,9 +636,31 @@ class VisualOdometry:
             self._record_depth_accuracy(frame)
             return res
         frame.T_world_cam = T_world_cam.copy()
+        quality = self._given_pose_brightness(frame) if self.config.tracking.affine_brightness else {}
         self.counts["tracked"] += 1
         mapped = self._hand_to_mapping(frame)
-        return FrameResult(frame.index, frame.timestamp, T_world_cam.copy(), False, {}, mapped=mapped)
+        return FrameResult(frame.index, frame.timestamp, T_world_cam.copy(), False, quality, mapped=mapped)
+
+    def _given_pose_brightness(self, frame: _Frame) -> dict:
+        """The frame's brightness in the chain when the pose is given (no tracking of its own): the
+        tracker aligns the frame to the current map from the given pose and only its brightness
+        estimate ``(a, b)`` is kept, so mapping compares exposure-compensated intensities as it does
+        for tracked frames. A failed alignment (a map still too young, a bad view) keeps the last
+        brightness."""
+        ref = self._current_reference()
+        if ref is None:
+            return {}
+        tc = self.config.tracking
+        sigma = self._monitor.tracking_sigma(tc.sigma_i, tc.noise_sigma_gain, frame.sharpness)
+        T_ref_new = inverse_se3(ref.T_world_ref) @ frame.T_world_cam
+        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_ref_new, self._monitor.affine_guess(ref.affine), sigma)
+        if tr.lost or not np.all(np.isfinite(tr.affine)):
+            frame.affine = self._monitor.affine
+            return {"brightness_lost_reason": tr.lost_reason}
+        frame.affine = self._monitor.accept(ref.affine, tr.affine, tr.residual_sigma, tr.noise_sigma)
+        frame.noise_sigma = self._monitor.noise_sigma
+        return {"brightness_a": float(frame.affine[0]), "brightness_b": float(frame.affine[1]),
+                "noise_sigma": float(self._monitor.noise_sigma)}
 
     def _process_rgbd(self, frame: _Frame, t_start: float) -> FrameResult:
         """Frame-to-frame RGB-D odometry: track against the previous frame's depth image."""

@@ -102,3 +102,40 @@ def test_frames_report_their_brightness_and_clipped_share():
         assert r.quality["clipped"] == pytest.approx(np.mean(images[k] >= cfg.mapping.saturation), abs=1e-6)
         assert r.quality["lost_reason"] == ""
     assert results[-1].quality["clipped"] > results[1].quality["clipped"]     # brighter: more clipped pixels
+
+
+def _given_pose_run(affine: bool):
+    """24 frames of the room, poses given (mapping only), random start: 8 frames at the first exposure
+    (the map converges), then a strong exposure ramp."""
+    room = naive_tracking.Room(seed=1, cell=0.05, depth=1.3, half_width=0.9, floor=0.5, ceiling=-0.6)
+    cfg = load_profile("phone", [f"tracking.affine_brightness={str(affine).lower()}", "system.init=random",
+                                 "system.mode=sync", "system.verify_init=false"])
+    gains = np.r_[np.ones(8), np.linspace(1.0, 1.5, 16)]
+    offsets = np.r_[np.zeros(8), np.linspace(0.0, -12.0, 16)]
+    results, depths = [], []
+    with VisualOdometry(INTR, cfg, pose_source="given") as vo:
+        for k, (g, o) in enumerate(zip(gains, offsets)):
+            T = exp_se3(np.array([0.006 * k, 0.002 * k, 0.0, 0.0, 0.004 * k, 0.0]))
+            img, z = room.render(T, INTR, supersample=2)
+            depths.append(z)
+            img = np.clip(np.rint(g * img + o), 0, 255).astype(np.uint8)
+            results.append(vo.process(img, k / 30.0, T_world_cam=T))
+        last = vo.take_published_maps()[-1]             # the newest map (start-up: every 4th frame)
+    z = depths[last.frame_index]
+    ok = last.valid & (z > 0) & (last.idepth > 0)
+    err = np.abs(1.0 / last.idepth[ok] - z[ok]) / z[ok]
+    assert last.frame_index >= 20
+    return results, gains, offsets, float(np.median(err)), int(ok.sum())
+
+
+def test_given_poses_still_measure_the_brightness_for_mapping():
+    """With given poses (no tracking of its own) the frames' brightness is still estimated (against the
+    map from the given pose) and handed to mapping: the chain follows the exposure ramp, and the map
+    after it is more accurate and denser than when mapping compares raw intensities."""
+    results, gains, offsets, err_on, n_on = _given_pose_run(True)
+    for k, r in enumerate(results[8:], 8):
+        assert r.quality["brightness_a"] == pytest.approx(gains[k], rel=0.03), (k, r.quality)
+        assert r.quality["brightness_b"] == pytest.approx(offsets[k], abs=3.0), (k, r.quality)
+    _, _, _, err_off, n_off = _given_pose_run(False)
+    # measured: 0.35 % median depth error on 36,000 pixels, against 7.1 % on 29,000 with raw intensities
+    assert err_on < 0.01 and err_on < 0.2 * err_off and n_on > 1.15 * n_off, (err_on, n_on, err_off, n_off)
