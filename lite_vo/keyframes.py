@@ -5,7 +5,7 @@ the source has colour, converged inverse depth and variance at mapping resolutio
 the grey image as it is, the inverse depth and variance only at the pixels that have a hypothesis (a
 packed mask and float32 values), the colour image as a JPEG (quality 95: it is only looked at, in the
 point cloud and the AR world's textures); the dense arrays are decoded on access (320x240 on ICL: about
-0.36 MB instead of 0.92 MB). The
+0.37 MB instead of 0.92 MB). The
 :class:`KeyframeStore` is owned by :class:`~lite_vo.system.VisualOdometry` (which offers it every
 published map) and read by everyone else: the whole-scene map (:func:`scene_cloud`, ``map.ply``), the
 persistent AR world and, later, relocalisation.

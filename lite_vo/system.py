@@ -169,7 +169,8 @@ class VisualOdometry:
         ``"filter"`` (the semi-dense filter, normal operation) or ``"images"`` (track every frame
         against the previous frame's depth image: RGB-D odometry, isolates tracking).
     pose_source:
-        ``"estimate"`` (tracking) or ``"given"`` (poses passed to :meth:`process`: isolates mapping).
+        ``"estimate"`` (tracking) or ``"given"`` (poses passed to :meth:`process`: isolates mapping; with
+        ``tracking.affine_brightness`` each frame is still aligned to the map, for its brightness only).
     photometric:
         a :class:`PhotometricCalibration` applied to every raw image first (None: none).
     """
