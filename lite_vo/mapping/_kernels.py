@@ -77,7 +77,8 @@ P_INIT_VAR = 45
 P_FILL_VALIDITY = 46
 P_SATURATION = 47         # intensities at or above this are clipped: never matched, never compared ...
 P_SAT_GAIN_TOL = 48       # ... when the brightness transfer's gain differs from 1 by more than this
-P_N = 49
+P_KEEP_CLIPPED = 49     # 1: a hypothesis whose pixel is clipped and flat is kept, not removed
+P_N = 50
 
 #: the per-pixel arrays of a map (see the module docstring for dtypes)
 MapState = namedtuple("MapState", ["idepth", "idepth_var", "idepth_s", "var_s", "valid", "validity",
@@ -446,6 +447,7 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
     nref = ref_slots.shape[0]
     min_grad = prm[P_MIN_GRAD]
     max_idepth_all = prm[P_MAX_IDEPTH]
+    keep_clipped = prm[P_KEEP_CLIPPED] > 0.5
     rows = interleaved_rows(3, h - 3, ROW_BLOCK, row_groups)
     for yi in prange(rows.shape[0]):
         y = rows[yi]
@@ -456,6 +458,8 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
             has = valid[y, x] != 0
             g = maxgrad[y, x]
             if has and g < min_grad:
+                if keep_clipped and cur[y, x] >= prm[P_SATURATION]:
+                    continue              # flattened by clipping, not textureless: kept until it can be seen
                 valid[y, x] = 0
                 status[y, x] = 6
                 continue
@@ -606,6 +610,7 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
     validity_cap = prm[P_VALIDITY_CAP]
     sat = prm[P_SATURATION]
     sat_check = abs(aff[0] - 1.0) > prm[P_SAT_GAIN_TOL]
+    keep_clipped = prm[P_KEEP_CLIPPED] > 0.5
     h, w = idepth_s.shape
     # pass 1: where each hypothesis lands (target >= 0: flat index; -1 border, -2 intensity, -3 none)
     target, w_d, w_var, w_u, w_v = work
@@ -637,15 +642,16 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             ix = int(u + 0.5)
             iy = int(v + 0.5)
             g = np.float64(maxgrad_new[iy, ix])
-            if g < min_grad:
+            dst = _bilinear(img_new, u, v)
+            flat_clipped = keep_clipped and g < min_grad and dst >= sat   # flattened by clipping, not textureless
+            if g < min_grad and not flat_clipped:
                 continue
             if px >= 0.0 and py >= 0.0 and px < w - 1 and py < h - 1:
                 src = _bilinear(img_old, px, py)
             else:
                 src = np.float64(img_old[min(max(int(py + 0.5), 0), h - 1), min(max(int(px + 0.5), 0), w - 1)])
-            dst = _bilinear(img_new, u, v)
             r = dst - (aff[0] * src + aff[1])
-            clipped = sat_check and (src >= sat or dst >= sat)    # under an exposure change: not comparable
+            clipped = (sat_check or flat_clipped) and (src >= sat or dst >= sat)  # not comparable
             if not clipped and r * r / (diff_const2 + diff_grad_mult * g * g) > 1.0:
                 continue
             ratio = d_new / d

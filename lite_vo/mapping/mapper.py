@@ -135,6 +135,7 @@ def mapping_params(cfg: MappingConfig) -> np.ndarray:
     p[kernels.P_FILL_VALIDITY] = cfg.fill_validity
     p[kernels.P_SATURATION] = cfg.saturation
     p[kernels.P_SAT_GAIN_TOL] = cfg.saturation_gain_tol
+    p[kernels.P_KEEP_CLIPPED] = 1.0 if cfg.keep_clipped else 0.0
     return p
 
 
