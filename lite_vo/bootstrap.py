@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import PinholeIntrinsics
-from .geometry import exp_se3, inverse_se3, log_so3, make_pose
+from .geometry import exp_se3, hat, inverse_se3, log_so3, make_pose
 
 log = logging.getLogger(__name__)
 
@@ -90,14 +90,6 @@ def patch_affine(img0: np.ndarray, img1: np.ndarray, p0: np.ndarray, p1: np.ndar
     if not (np.isfinite(a) and np.isfinite(b)) or a <= 0:
         return None
     return float(a), float(b)
-
-
-def _skew(q: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices."""
-    z = np.zeros(q.shape[:-1])
-    return np.stack([np.stack([z, -q[..., 2], q[..., 1]], -1),
-                     np.stack([q[..., 2], z, -q[..., 0]], -1),
-                     np.stack([-q[..., 1], q[..., 0], z], -1)], -2)
 
 
 def _unit_median_depth(T: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -174,7 +166,7 @@ def _levenberg_marquardt(K, T, rho, uv, vis, iters, huber_px, rel_tol):
         dpi[..., 0, 2] = -fx * q[..., 0] / z ** 2
         dpi[..., 1, 1] = fy / z
         dpi[..., 1, 2] = -fy * q[..., 1] / z ** 2
-        Jp = np.concatenate([dpi * rho[None, :, None, None], -dpi @ _skew(q)], axis=-1)   # (F, N, 2, 6)
+        Jp = np.concatenate([dpi * rho[None, :, None, None], -dpi @ hat(q)], axis=-1)   # (F, N, 2, 6)
         Jr = np.einsum("fnij,fj->fni", dpi, T[1:, :3, 3])                                 # (F, N, 2)
         Hpp = np.einsum("fnki,fn,fnkj->fij", Jp, w, Jp)
         Hpr = np.einsum("fnki,fn,fnk->fin", Jp, w, Jr)                                    # (F, 6, N)
