@@ -465,23 +465,30 @@ class Rectifier:
         """Output ``(width, height)``."""
         return self.intrinsics.width, self.intrinsics.height
 
-    def _check(self, image: np.ndarray, what: str) -> None:
+    def _check(self, image: np.ndarray, what: str, channels: int = 1) -> None:
         nat = self.camera.intrinsics
-        if image.ndim != 2 or image.shape != (nat.height, nat.width):
+        ok = image.ndim == 2 if channels == 1 else (image.ndim == 3 and image.shape[2] == channels)
+        if not ok or image.shape[:2] != (nat.height, nat.width):
             from .errors import InputError
+            expected = (f"a {nat.height}x{nat.width} grey image" if channels == 1
+                        else f"{nat.height}x{nat.width}x{channels}")
             raise InputError(f"{what} of shape {image.shape} does not match the camera's "
-                             f"{nat.width}x{nat.height} (expected a {nat.height}x{nat.width} grey image)")
+                             f"{nat.width}x{nat.height} (expected {expected})")
 
-    def __call__(self, image: np.ndarray) -> np.ndarray:
-        """Rectified, resized float32 image (0..255) of a native grey image (uint8 or float)."""
+    def _warp(self, img: np.ndarray) -> np.ndarray:
+        """Undistortion (when the camera has distortion) and the area-averaging resize, any channels."""
         import cv2
-        image = np.asarray(image)
-        self._check(image, "image")
-        img = image.astype(np.float32, copy=False)
         if not self._identity:
             img = cv2.remap(img, self._map1, self._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if self.factor > 1:
             img = cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
+        return img
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        """Rectified, resized float32 image (0..255) of a native grey image (uint8 or float)."""
+        image = np.asarray(image)
+        self._check(image, "image")
+        img = self._warp(image.astype(np.float32, copy=False))
         if np.shares_memory(img, image):
             return np.array(img, dtype=np.float32)     # never hand out the caller's buffer
         return np.ascontiguousarray(img, dtype=np.float32)
@@ -490,19 +497,11 @@ class Rectifier:
         """Rectified, resized uint8 (H, W, 3) image of a native 3-channel uint8 image (all channels in one
         pass, in uint8: for display, the point cloud and textures; the grey image goes through
         :meth:`__call__`)."""
-        import cv2
-        nat = self.camera.intrinsics
         img = np.asarray(bgr)
-        if img.ndim != 3 or img.shape[:2] != (nat.height, nat.width):
-            from .errors import InputError
-            raise InputError(f"colour image of shape {img.shape} does not match the camera's "
-                             f"{nat.width}x{nat.height} (expected {nat.height}x{nat.width}x3)")
+        self._check(img, "colour image", channels=3)
         if img.dtype != np.uint8:
             img = np.clip(img.astype(np.float32) + 0.5, 0, 255).astype(np.uint8)
-        if not self._identity:
-            img = cv2.remap(img, self._map1, self._map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        if self.factor > 1:
-            img = cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
+        img = self._warp(img)
         return np.array(img, dtype=np.uint8) if np.shares_memory(img, bgr) else img
 
     def depth(self, depth_m: np.ndarray) -> np.ndarray:
