@@ -471,8 +471,7 @@ class VisualOdometry:
         base = self._last_pose if self._lost_count == 0 else self._last_good_pose
         guess_world = base @ self._velocity if self.config.tracking.constant_velocity else base
         T_guess = T_ref_world @ guess_world
-        tc = self.config.tracking
-        sigma = self._monitor.tracking_sigma(tc.sigma_i, tc.noise_sigma_gain, frame.sharpness)
+        sigma = self._tracking_sigma(frame)
         tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, self._monitor.affine_guess(ref.affine), sigma,
                                  motion=(T_ref_world @ base, self._velocity))
         for lvl, ms in tr.level_ms.items():
@@ -483,8 +482,7 @@ class VisualOdometry:
                    "lost_reason": tr.lost_reason, "clipped": frame.clipped}
         lost = bool(tr.lost) or not np.all(np.isfinite(tr.T_ref_new))
         if not lost:
-            frame.affine = self._monitor.accept(ref.affine, tr.affine, tr.residual_sigma, tr.noise_sigma)
-            frame.noise_sigma = self._monitor.noise_sigma
+            self._book_brightness(frame, ref.affine, tr)
             self._recent_affine[frame.index] = frame.affine
             self._recent_affine.pop(frame.index - 1000, None)
         quality["noise_sigma"] = float(self._monitor.noise_sigma)
@@ -554,8 +552,7 @@ class VisualOdometry:
             self._reference = ref
         self._tracker.reset_motion_history()
         tr = rel.result
-        frame.affine = self._monitor.accept(ref.affine, tr.affine, tr.residual_sigma, tr.noise_sigma)
-        frame.noise_sigma = self._monitor.noise_sigma
+        self._book_brightness(frame, ref.affine, tr)
         T_world_new = rel.T_world_new
         log.info("relocalised frame %d against keyframe %d (%s guess, %d tracking calls)", frame.index,
                  kf.index, rel.guess, rel.tried)
@@ -642,6 +639,17 @@ class VisualOdometry:
         mapped = self._hand_to_mapping(frame)
         return FrameResult(frame.index, frame.timestamp, T_world_cam.copy(), False, quality, mapped=mapped)
 
+    def _tracking_sigma(self, frame: _Frame) -> float:
+        """Intensity noise std of the tracking weights for this frame (noise estimate, blur)."""
+        tc = self.config.tracking
+        return self._monitor.tracking_sigma(tc.sigma_i, tc.noise_sigma_gain, frame.sharpness)
+
+    def _book_brightness(self, frame: _Frame, ref_affine: tuple, tr) -> None:
+        """The frame's brightness in the chain (and the smoothed noise) from an accepted alignment ``tr``
+        against a reference of brightness ``ref_affine``."""
+        frame.affine = self._monitor.accept(ref_affine, tr.affine, tr.residual_sigma, tr.noise_sigma)
+        frame.noise_sigma = self._monitor.noise_sigma
+
     def _given_pose_brightness(self, frame: _Frame) -> dict:
         """The frame's brightness in the chain when the pose is given (no tracking of its own): the
         tracker aligns the frame to the current map from the given pose and only its brightness
@@ -651,15 +659,13 @@ class VisualOdometry:
         ref = self._current_reference()
         if ref is None:
             return {}
-        tc = self.config.tracking
-        sigma = self._monitor.tracking_sigma(tc.sigma_i, tc.noise_sigma_gain, frame.sharpness)
+        sigma = self._tracking_sigma(frame)
         T_ref_new = inverse_se3(ref.T_world_ref) @ frame.T_world_cam
         tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_ref_new, self._monitor.affine_guess(ref.affine), sigma)
         if tr.lost or not np.all(np.isfinite(tr.affine)):
             frame.affine = self._monitor.affine
             return {"brightness_lost_reason": tr.lost_reason}
-        frame.affine = self._monitor.accept(ref.affine, tr.affine, tr.residual_sigma, tr.noise_sigma)
-        frame.noise_sigma = self._monitor.noise_sigma
+        self._book_brightness(frame, ref.affine, tr)
         return {"brightness_a": float(frame.affine[0]), "brightness_b": float(frame.affine[1]),
                 "noise_sigma": float(self._monitor.noise_sigma)}
 
