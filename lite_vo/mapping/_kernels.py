@@ -642,8 +642,10 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             ix = int(u + 0.5)
             iy = int(v + 0.5)
             g = np.float64(maxgrad_new[iy, ix])
-            dst = _bilinear(img_new, u, v)
-            flat_clipped = keep_clipped and g < min_grad and dst >= sat   # flattened by clipping, not textureless
+            # the new intensity; for a pixel without gradient only when keep_clipped asks whether it is
+            # clipped (flattened by clipping, not textureless: kept)
+            dst = _bilinear(img_new, u, v) if (g >= min_grad or keep_clipped) else 0.0
+            flat_clipped = keep_clipped and g < min_grad and dst >= sat
             if g < min_grad and not flat_clipped:
                 continue
             if px >= 0.0 and py >= 0.0 and px < w - 1 and py < h - 1:
