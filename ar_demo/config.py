@@ -90,7 +90,9 @@ class ARConfig:
     spawn_clearance: float = param(0.75, "spawn only where seen floor extends this far around the car (car lengths)", 0.0, 10.0)
     respawn_hidden_s: float = param(0.2, "respawn on seen floor in view after obstacles of the world hid the car from the camera this long (s; 0: never)", 0.0, 1000.0)
     respawn_stuck_s: float = param(1.5, "respawn on seen floor in view when the car moved less than a quarter of its length in this long (s; 0: never): wedged against real geometry", 0.0, 1000.0)
-    respawn_tilt_deg: float = param(60.0, "respawn when the car is tilted more than this for a second (fell over)", 1.0, 180.0)
+    respawn_tilt_deg: float = param(60.0, "respawn when the car is tilted more than this for respawn_tilt_s (fell over; the time counts until it is back below half this tilt)", 1.0, 180.0)
+    respawn_tilt_s: float = param(0.5, "how long the car may lie tilted before it respawns (s); with no floor in view it is put back on its wheels where it is", 0.0, 1000.0)
+    inside_radius: float = param(0.3, "a world rebuild that puts anything but seen floor within this distance of the car's footprint centre respawns it (car lengths)", 0.0, 10.0)
     view_margin: float = param(0.12, "the autopilot aims and spawns this far inside the image border (image fraction)", 0.0, 0.45)
     # --- rendering / video
     video_fps: float = param(0.0, "video frame rate (0: from the sequence timestamps)", 0.0, 240.0)

@@ -14,7 +14,8 @@ times the camera height above the ground plane at the start (0.2: a 30 cm car fo
 a floor disc of ``spawn_clearance`` car lengths, not hidden behind obstacles of the field), the
 autopilot steers towards seen floor in the lower middle of the view around obstacles of the field
 (and backs up when blocked or pressed against an obstacle), and it respawns there when it fell,
-flipped, left the field, stayed out of view for ``respawn_out_of_view_s``, hidden behind obstacles
+flipped (tilted beyond ``respawn_tilt_deg`` for ``respawn_tilt_s``; with no seen floor in view it is put
+back on its wheels where it lies), left the field, stayed out of view for ``respawn_out_of_view_s``, hidden behind obstacles
 of the field for ``respawn_hidden_s`` or stuck (less than a quarter of its length of progress in
 ``respawn_stuck_s``, whether driving or backing up). It stands on the fused local floor height (see
 :mod:`ar_demo.heightfield`), so it stays on the floor the current camera sees when the pose drifts
@@ -187,7 +188,8 @@ class ARWorld:
         self.model, self.field = model, model.field
         self._inside_geometry = False
         if self.has_car:                          # the new world puts real geometry where the car is
-            self._inside_geometry = not self.field.free_disc(self.physics.car_centre_xy(), 0.3 * self.physics.car_length)
+            self._inside_geometry = not self.field.free_disc(self.physics.car_centre_xy(),
+                                                             self.cfg.inside_radius * self.physics.car_length)
 
     def step(self, dt: float, T_world_cam: np.ndarray | None) -> None:
         """Advance the simulation; spawn, steer and respawn the car with respect to the current view."""
@@ -324,7 +326,10 @@ class ARWorld:
         st = ph.car_state()
         z_axis = st.T_phys_base[:3, 2]
         tilt = math.degrees(math.acos(float(np.clip(z_axis[2], -1.0, 1.0))))
-        self._tilted_s = self._tilted_s + dt if tilt > self.cfg.respawn_tilt_deg else 0.0
+        if tilt > self.cfg.respawn_tilt_deg:
+            self._tilted_s += dt
+        elif tilt < 0.5 * self.cfg.respawn_tilt_deg:
+            self._tilted_s = 0.0                   # back on its wheels (a car rocking on its side keeps counting)
         pos = st.T_phys_base[:3, 3]
         _, _, inside = self.field.spec.index(pos[None])
         reason = None
@@ -332,7 +337,7 @@ class ARWorld:
             reason = "fell or left the world"
         elif self._inside_geometry:
             reason = "inside real geometry"
-        elif self._tilted_s > 1.0:
+        elif self._tilted_s > self.cfg.respawn_tilt_s:
             reason = "tipped over"
         elif self._stuck(pos[:2]):
             reason = "stuck"
@@ -349,4 +354,20 @@ class ARWorld:
             elif lim_hidden > 0 and self._hidden_s > lim_hidden:
                 reason = "hidden behind real geometry"
         if reason is not None and T is not None:
-            self._try_spawn(T, reason)
+            if not self._try_spawn(T, reason) and reason == "tipped over":
+                self._right_in_place()
+
+    def _right_in_place(self) -> bool:
+        """Put a tipped car back on its wheels where it lies (no seen floor in view to respawn on),
+        when seen floor is under it; heading kept."""
+        ph = self.physics
+        xy = ph.car_centre_xy()
+        if not self.field.free_disc(xy, self.cfg.inside_radius * ph.car_length):
+            return False
+        fwd = ph.car_state().T_phys_base[:3, 0]
+        ph.spawn_car(xy, math.atan2(fwd[1], fwd[0]))
+        self.spawns += 1
+        self.respawn_reasons["tipped over, righted in place"] = self.respawn_reasons.get("tipped over, righted in place", 0) + 1
+        self._tilted_s = 0.0
+        self._stuck_from = None
+        return True
