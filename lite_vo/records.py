@@ -41,35 +41,41 @@ class PoseRecord:
         found = i < self._n and self._index[i] == index
         return i if found and (removed_too or self._ok[i]) else None
 
-    def add(self, index: int, timestamp: float, T_world_cam: np.ndarray) -> None:
-        """The pose of frame ``index`` (a later frame than every one added so far, or one replaced)."""
+    def add(self, index: int, timestamp: float, T_world_cam: np.ndarray | None) -> None:
+        """The pose of frame ``index`` (a later frame than every one added so far, or one replaced);
+        None records a frame without a pose (lost), which a later :meth:`correct` can give one."""
         i = self._row(index, removed_too=True)
         if i is not None:
-            self._T[i] = T_world_cam
             self._t[i] = timestamp
-            if not self._ok[i]:
-                self._ok[i] = True
-                self._count += 1
+            self._set(i, T_world_cam)
             return
         if self._n and index <= self._index[self._n - 1]:
             raise ValueError(f"frame {index} added after frame {int(self._index[self._n - 1])}")
         n = self._n + 1
         self._index, self._t = _grown(self._index, n), _grown(self._t, n)
         self._T, self._ok = _grown(self._T, n), _grown(self._ok, n)
-        self._index[self._n], self._t[self._n], self._T[self._n], self._ok[self._n] = index, timestamp, T_world_cam, True
+        self._index[self._n], self._t[self._n], self._ok[self._n] = index, timestamp, False
         self._n = n
-        self._count += 1
+        self._set(n - 1, T_world_cam)
+
+    def _set(self, i: int, T_world_cam: np.ndarray | None) -> None:
+        if T_world_cam is None:
+            if self._ok[i]:
+                self._ok[i] = False
+                self._count -= 1
+            return
+        self._T[i] = T_world_cam
+        if not self._ok[i]:
+            self._ok[i] = True
+            self._count += 1
 
     def correct(self, index: int, T_world_cam: np.ndarray | None) -> bool:
-        """Replace the pose of a recorded frame (None: it has no pose any more). False when absent."""
-        i = self._row(index)
-        if i is None:
+        """Replace the pose of a recorded frame, or give a frame recorded without one (lost) its
+        pose; None: it has no pose any more. False when the frame was never recorded or nothing changed."""
+        i = self._row(index, removed_too=True)
+        if i is None or (T_world_cam is None and not self._ok[i]):
             return False
-        if T_world_cam is None:
-            self._ok[i] = False
-            self._count -= 1
-        else:
-            self._T[i] = T_world_cam
+        self._set(i, T_world_cam)
         return True
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

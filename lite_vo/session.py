@@ -289,8 +289,8 @@ class Session:
                     for idx, T in res.corrections.items():   # earlier poses re-estimated (bootstrap)
                         tracked.correct(idx, T)
                     self._fan_out("on_corrections", dict(res.corrections))
-                if not res.lost and res.T_world_cam is not None:
-                    tracked.add(res.index, res.timestamp, res.T_world_cam)
+                # a lost frame is recorded without a pose: the two-view start-up may give it one later
+                tracked.add(res.index, res.timestamp, None if res.lost else res.T_world_cam)
                 for m in vo.take_published_maps():
                     self._fan_out("on_map", m)
                 self._fan_out("on_frame", FrameEvent(res, res.image, self._sink_image(fr) if want_image else None))
@@ -313,6 +313,7 @@ class Session:
         wall_s = time.perf_counter() - t_wall
         cpu_s = time.process_time() - c_wall
         frames = {k: int(v) for k, v in vo.counts.items()} | counts
+        frames["posed"] = len(tracked)  # frames with a pose in the end (start-up corrections included)
         if status is None:
             status = _status(frames, events)
         timing = vo.timing()

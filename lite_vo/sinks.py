@@ -45,7 +45,8 @@ class TrajectorySink(OutputSink):
     """``trajectory.txt`` written as the run goes (see the module docstring).
 
     ``poses`` (a :class:`~lite_vo.records.PoseRecord`: frame index -> timestamp, T_world_cam) is
-    the trajectory with every correction applied; lost frames are absent (a gap).
+    the trajectory with every correction applied; lost frames are absent (a gap) unless a later
+    correction gives them a pose (frames lost during a monocular start-up get the two-view start-up's).
     """
 
     def __init__(self, path, comment: str | None = None) -> None:
@@ -60,6 +61,7 @@ class TrajectorySink(OutputSink):
     def on_frame(self, event: FrameEvent) -> None:
         r = event.result
         if r.lost or r.T_world_cam is None:
+            self.poses.add(r.index, r.timestamp, None)   # a start-up correction may give it a pose later
             return
         self.poses.add(r.index, r.timestamp, r.T_world_cam)
         self._file.write(tum_line(r.timestamp, r.T_world_cam))   # line-buffered: one whole line per write

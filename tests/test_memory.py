@@ -65,8 +65,11 @@ def test_timers_keep_every_value_in_about_4_bytes_and_summarise_them_exactly():
 def test_pose_record_behaves_as_the_dict_it_replaces():
     rng = np.random.default_rng(1)
     rec, ref, removed = PoseRecord(), {}, []
+    lost = []
     for i in range(300):
-        if rng.random() < 0.2:                     # lost frame: no pose
+        if rng.random() < 0.2:                     # lost frame: recorded without a pose
+            rec.add(i, 0.1 * i, None)
+            lost.append(i)
             continue
         T = np.eye(4)
         T[:3, 3] = rng.normal(size=3)
@@ -84,6 +87,12 @@ def test_pose_record_behaves_as_the_dict_it_replaces():
                 assert rec.correct(j, T2)
                 ref[j] = (ref[j][0], T2)
     assert not rec.correct(10_000, np.eye(4))       # never recorded
+    assert not rec.correct(lost[0], None)           # lost and still without a pose: nothing changes
+    for j in lost[1:4]:                             # the start-up gives lost frames a pose afterwards
+        T3 = np.eye(4)
+        T3[:3, 3] = rng.normal(size=3)
+        assert rec.correct(j, T3)
+        ref[j] = (0.1 * j, T3)
     assert removed
     rec.add(removed[0], 0.1 * removed[0], np.eye(4))  # a removed pose given again comes back
     ref[removed[0]] = (0.1 * removed[0], np.eye(4))

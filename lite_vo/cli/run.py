@@ -78,7 +78,9 @@ def run(args) -> int:
                        map_voxel=args.map_voxel)
     c = res.info["frames"]
     skipped = f", {c['skipped']} unreadable skipped" if c.get("skipped") else ""
-    msg = (f"{seq.name}: {res.status}; {c['tracked']} of {c['in']} frames tracked, {c['lost']} lost, "
+    later = c.get("posed", c["tracked"]) - c["tracked"]
+    later = f" ({later} of them posed later by the two-view start-up)" if later > 0 else ""
+    msg = (f"{seq.name}: {res.status}; {c['tracked']} of {c['in']} frames tracked, {c['lost']} lost{later}, "
            f"{res.timing['frames']['dropped']} dropped{skipped}; tracking {res.timing['tracking']['median']:.1f} ms, "
            f"mapping {res.timing['mapping']['median']:.1f} ms (medians); output in {out}")
     acc = res.info.get("depth_accuracy")
