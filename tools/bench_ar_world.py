@@ -4,21 +4,26 @@ measures the car against the depth images (:mod:`ar_demo.evaluate`) and writes
 
 Usage::
 
-    python tools/bench_ar_world.py [--sequence ../shared/data/icl_livingroom_211] [--frames N] [--sensitivity]
+    python tools/bench_ar_world.py [--sequence ../shared/data/icl_livingroom_211] [--frames N] [--intervals 3,4,5,6,7]
 
-``--sensitivity`` also runs the world rebuilt every 3, 4, 6 and 7 frames (instead of 5): the car's
-path is chaotic, and this shows how much the measures move with it.
+The car's path is chaotic: a small change of the VO or of the world updates sends it elsewhere, so one
+run passes or fails a target by luck. The benchmark therefore runs the same sequence with the world
+rebuilt every K frames for each K of ``--intervals`` (default 3 to 7; 5 is the default setting) and
+judges the targets on the median over those runs; every run's measures are in the table.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+MEASURES = ("in_view", "on_surface_in_view", "hidden_in_view", "upright_20deg", "tilt_p90_deg")
+TARGETS = {"in_view": 0.70, "on_surface_in_view": 0.90, "hidden_in_view": 0.05, "upright_20deg": 0.90}
 
 
 def stills(video: Path, frames: list[int], out: Path) -> None:
@@ -61,53 +66,51 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--ar-set", action="append", default=[], metavar="KEY=VALUE",
                     help="extra AR settings (the world is always built synchronously: deterministic results)")
-    ap.add_argument("--sensitivity", action="store_true",
-                    help="also run with the world rebuilt every 3, 4, 6 and 7 frames")
+    ap.add_argument("--intervals", default="3,4,5,6,7",
+                    help="world rebuild intervals K (frames) to run; the targets are judged on the median")
     args = ap.parse_args(argv)
-    video = args.work / "ar.mp4"
-    r = run_and_evaluate(args.sequence, args.work, args.frames, args.ar_set)
-    wall = r["wall_s"]
-    print(json.dumps(r, indent=2))
+    ks = sorted({int(k) for k in args.intervals.split(",")})
+    runs, t0 = {}, time.perf_counter()
+    for k in ks:
+        runs[k] = run_and_evaluate(args.sequence, args.work.with_name(args.work.name + f"_k{k}"), args.frames,
+                                   args.ar_set + [f"world_update_every={k}"])
+        print(k, json.dumps({m: runs[k][m] for m in MEASURES}))
+    wall = time.perf_counter() - t0
+    med = {m: float(statistics.median(r[m] for r in runs.values())) for m in MEASURES}
+    met = {m: (med[m] <= lim if m == "hidden_in_view" else med[m] >= lim) for m, lim in TARGETS.items()}
     if args.json:
-        args.json.write_text(json.dumps(r, indent=2) + "\n")
-    stills(video, [40, 90, 140, 200], ROOT / "benchmarks" / "ar_world_stills.png")
+        args.json.write_text(json.dumps({"median": med, "met": met, "runs": runs}, indent=2, default=str) + "\n")
+    still_k = 5 if 5 in runs else ks[0]
+    stills(args.work.with_name(args.work.name + f"_k{still_k}") / "ar.mp4", [40, 90, 140, 200],
+           ROOT / "benchmarks" / "ar_world_stills.png")
     ok = lambda c: "met" if c else "MISSED"   # noqa: E731
-    t = r["targets"]
+    pct = lambda v: f"{100 * v:.1f} %"        # noqa: E731
     lines = [
         "# AR world on ICL: does the car live in the real room? (issue 15)", "",
-        f"Command: `python tools/bench_ar_world.py{' --sensitivity' if args.sensitivity else ''}` (runs `lite-vo ar {args.sequence.name}"
-        f"{' --max-frames ' + str(args.frames) if args.frames else ''}`: VO poses, depth-initialised, metric, no IMU, "
+        f"Command: `python tools/bench_ar_world.py{' --intervals ' + args.intervals if args.intervals != '3,4,5,6,7' else ''}` "
+        f"(runs `lite-vo ar {args.sequence.name}{' --max-frames ' + str(args.frames) if args.frames else ''} "
+        f"--ar-set world_update_every=K` for K = {', '.join(map(str, ks))}: VO poses, depth-initialised, metric, no IMU, "
         f"world built synchronously (`--ar-set async_world=false`: deterministic){''.join(' --ar-set ' + kv for kv in args.ar_set)}; "
         f"{wall:.0f} s). Measured with `ar_demo.evaluate` against the ICL depth images: the car's footprint centre "
-        "(car.txt) taken into the camera of trajectory.txt (what the video shows).", "",
-        "| measure | value | target |", "|---|---|---|",
-        f"| frames from spawn | {r['frames_from_spawn']} | |",
-        f"| footprint centre in the image | {100 * r['in_view']:.1f} % | >= 70 % ({ok(t['in_view >= 0.70'])}) |",
-        f"| on a real surface (depth within 8 %), in view | {100 * r['on_surface_in_view']:.1f} % | >= 90 % "
-        f"({ok(t['on_surface_in_view >= 0.90'])}) |",
-        f"| hidden behind / inside real geometry, in view | {100 * r['hidden_in_view']:.1f} % | <= 5 % "
-        f"({ok(t['hidden_in_view <= 0.05'])}) |",
-        f"| tilt <= 20 deg against the ground plane | {100 * r['upright_20deg']:.1f} % (p90 {r['tilt_p90_deg']:.1f} deg) "
-        f"| >= 90 % ({ok(t['upright_20deg >= 0.90'])}) |",
-        f"| car length | {r['car_length']} m | toy car |",
-        f"| spawns | {r['spawns']} ({r['spawn_reasons']}) | |", "",
-        "Before (issue 15): in view 60 %, on a surface 39 %, hidden 43 %. With the first persistent world "
-        "(car on the global ground plane): in view 64.8 %, on a surface 80.3 %, hidden 17.3 %, upright 100 %.", "",
-        "The car's path is chaotic: small changes (of the VO, or of the settings) send it elsewhere.", "",
+        "(car.txt) taken into the camera of trajectory.txt (what the video shows), from its first spawn on.", "",
+        "The car's path is chaotic: a small change (of the VO, or of the settings) sends it elsewhere, so a "
+        "single run passes or fails a target by luck. The targets are judged on the **median over the rebuild "
+        f"intervals** (K = 5 is the default setting).", "",
+        "| K | in view (>= 70 %) | on a real surface, in view (>= 90 %) | hidden / inside, in view (<= 5 %) | "
+        "tilt <= 20 deg (>= 90 %) | tilt p90 | spawns |", "|---|---|---|---|---|---|---|",
     ]
-    if args.sensitivity:
-        lines += ["With the world rebuilt every K frames instead of 5 (`--sensitivity`, "
-                  "`--ar-set world_update_every=K`):", "",
-                  "| K | in view | on a surface | hidden | upright | spawns |", "|---|---|---|---|---|---|"]
-        for k in (3, 4, 6, 7):
-            q = run_and_evaluate(args.sequence, args.work.with_name(args.work.name + f"_k{k}"), args.frames,
-                                 args.ar_set + [f"world_update_every={k}"])
-            lines.append(f"| {k} | {100 * q['in_view']:.1f} % | {100 * q['on_surface_in_view']:.1f} % | "
-                         f"{100 * q['hidden_in_view']:.1f} % | {100 * q['upright_20deg']:.1f} % | {q['spawn_reasons']} |")
-        lines.append("")
-    lines += [
-        "![stills](ar_world_stills.png)",
-    ]
+    for k, q in runs.items():
+        lines.append(f"| {k}{' (default)' if k == 5 else ''} | {pct(q['in_view'])} | {pct(q['on_surface_in_view'])} | "
+                     f"{pct(q['hidden_in_view'])} | {pct(q['upright_20deg'])} | {q['tilt_p90_deg']:.1f} deg | "
+                     f"{q['spawns']} ({q['spawn_reasons']}) |")
+    lines += [f"| **median** | **{pct(med['in_view'])}** ({ok(met['in_view'])}) | **{pct(med['on_surface_in_view'])}** "
+              f"({ok(met['on_surface_in_view'])}) | **{pct(med['hidden_in_view'])}** ({ok(met['hidden_in_view'])}) | "
+              f"**{pct(med['upright_20deg'])}** ({ok(met['upright_20deg'])}) | {med['tilt_p90_deg']:.1f} deg | |", "",
+              f"Car length {runs[still_k]['car_length']} m (a toy car); frames from the first spawn: "
+              f"{runs[still_k]['frames_from_spawn']} (K = {still_k}).", "",
+              "Before (issue 15): in view 60 %, on a surface 39 %, hidden 43 %. With the first persistent world "
+              "(car on the global ground plane): in view 64.8 %, on a surface 80.3 %, hidden 17.3 %, upright 100 %.", "",
+              f"![stills](ar_world_stills.png) (K = {still_k})"]
     args.out.write_text("\n".join(lines) + "\n")
     return 0
 
