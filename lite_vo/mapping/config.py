@@ -37,10 +37,10 @@ class MappingConfig:
     saturation_gain_tol: float = param(0.02, "the clipped-pixel rules apply only between frames whose brightness gain "
                                        "differs by more than this (without an exposure change, the edges of clipped "
                                        "areas are stable and useful)", 0.0, 10.0)
-    keep_clipped: bool = param(False, "keep a hypothesis whose pixel is clipped (at or above saturation) and has no "
+    keep_clipped: bool = param(True, "keep a hypothesis whose pixel is clipped (at or above saturation) and has no "
                                "gradient left, instead of removing it: under auto-exposure a bright region flattens "
                                "for a while and its map would be deleted and rebuilt (ICL with auto-exposure, depth "
-                               "start: ATE 2.4 -> 1.1 %); off by default until the AR world is robust to it")
+                               "start: ATE 2.4 -> 1.1 %)")
     # observation variance (eq. 3.6-3.12)
     sigma_i: float = param(4.0, "image noise std in grey levels for the photometric error", 0.01, 100.0)
     noise_sigma_gain: float = param(1.0, "the photometric variance uses sigma = max(sigma_i, this * the frame's image "
