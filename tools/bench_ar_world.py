@@ -95,7 +95,7 @@ def main(argv=None) -> int:
         "(car.txt) taken into the camera of trajectory.txt (what the video shows), from its first spawn on.", "",
         "The car's path is chaotic: a small change (of the VO, or of the settings) sends it elsewhere, so a "
         "single run passes or fails a target by luck. The targets are judged on the **median over the rebuild "
-        f"intervals** (K = 5 is the default setting).", "",
+        "intervals** (K = 5 is the default setting).", "",
         "| K | in view (>= 70 %) | on a real surface, in view (>= 90 %) | hidden / inside, in view (<= 5 %) | "
         "tilt <= 20 deg (>= 90 %) | tilt p90 | spawns |", "|---|---|---|---|---|---|---|",
     ]
