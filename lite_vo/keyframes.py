@@ -351,14 +351,23 @@ def depth_jump(idepth: np.ndarray, radius: int = 2) -> np.ndarray:
     return out
 
 
+def _flat_clipped(image: np.ndarray, level: float) -> np.ndarray:
+    """Pixels that, with their 8 neighbours, are at or above ``level`` (clipped flat)."""
+    return cv2.erode((np.asarray(image) >= level).astype(np.uint8), np.ones((3, 3), np.uint8),
+                     borderType=cv2.BORDER_REPLICATE) > 0
+
+
 def scene_cloud(keyframes, max_rel_std: float = 0.5, rel_tol: float = 0.07, neighbours: int = 10,
                 min_support: int = 1, min_agree: float = 0.5, window: int = 1, max_jump: float = 0.1,
-                voxel: float = 0.0) -> PointCloud:
+                voxel: float = 0.0, clipped: float = 250.0) -> PointCloud:
     """All keyframes' converged points in the world frame, coloured from their images.
 
-    Outliers are removed three times:
+    Outliers are removed four times:
 
     * by variance: the relative depth standard deviation is below ``max_rel_std``;
+    * where clipping flattened the image: a point whose keyframe pixel and its 8 neighbours are all at or
+      above ``clipped`` (grey level; 256 keeps them) is a hypothesis the filter kept unobserved through
+      the clipping (``mapping.keep_clipped``): it could not be checked against that image;
     * at depth discontinuities: no hypothesis within 2 pixels of the point (in its keyframe) differs
       from it by more than ``max_jump`` in relative inverse depth. Points on an occlusion boundary are
       where the semi-dense map smears foreground into background; they were most of the far outliers
@@ -372,7 +381,7 @@ def scene_cloud(keyframes, max_rel_std: float = 0.5, rel_tol: float = 0.07, neig
     newest scale are used. :func:`scene_cloud_parts` gives the same points one keyframe at a time.
     """
     parts = list(scene_cloud_parts(keyframes, max_rel_std, rel_tol, neighbours, min_support, min_agree, window,
-                                   max_jump))
+                                   max_jump, clipped))
     if not parts:
         return PointCloud(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), np.zeros(0, np.float32),
                           np.zeros(0, np.int32), np.zeros((0, 2), np.int16))
@@ -382,7 +391,8 @@ def scene_cloud(keyframes, max_rel_std: float = 0.5, rel_tol: float = 0.07, neig
 
 
 def scene_cloud_parts(keyframes, max_rel_std: float = 0.5, rel_tol: float = 0.07, neighbours: int = 10,
-                      min_support: int = 1, min_agree: float = 0.5, window: int = 1, max_jump: float = 0.1):
+                      min_support: int = 1, min_agree: float = 0.5, window: int = 1, max_jump: float = 0.1,
+                      clipped: float = 250.0):
     """The points of :func:`scene_cloud` (without ``voxel``), one :class:`PointCloud` per keyframe
     that keeps points, in the same order: a large cloud can be written without holding all of it."""
     kfs = keyframes.current() if isinstance(keyframes, KeyframeStore) else list(keyframes)
@@ -395,6 +405,9 @@ def scene_cloud_parts(keyframes, max_rel_std: float = 0.5, rel_tol: float = 0.07
         if np.isfinite(max_jump) and len(u):
             smooth = depth_jump(kf.idepth)[v, u] <= max_jump
             p_cam, u, v, var = p_cam[smooth], u[smooth], v[smooth], var[smooth]
+        if clipped <= 255 and len(u):
+            seen = ~_flat_clipped(kf.image, clipped)[v, u]
+            p_cam, u, v, var = p_cam[seen], u[seen], v[seen], var[seen]
         if len(u) == 0:
             continue
         p_world = transform_points(kf.T_world_cam, p_cam)

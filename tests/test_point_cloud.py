@@ -63,6 +63,24 @@ def test_points_at_a_depth_discontinuity_are_removed():
     assert len(scene_cloud([kf], min_support=0, max_jump=np.inf).points) == 48 * 64
 
 
+
+def test_points_kept_unobserved_through_clipping_are_left_out():
+    """A clipped, flat patch (grey 255 over 10x10 pixels: hypotheses the filter kept unobserved,
+    mapping.keep_clipped) gives no points except along its rim (8 neighbours not all clipped); a bright
+    but textured patch and the rest of the image keep theirs; clipped=256 keeps everything."""
+    img = np.full((48, 64), 100.0)
+    img[10:20, 10:20] = 255.0                               # clipped flat
+    img[30:40, 40:50] = 252.0                               # bright with texture: every other pixel 240
+    img[30:40:2, 40:50] = 240.0
+    d = np.full((48, 64), 0.5, np.float32)
+    kf = Keyframe.make(0, 0.0, np.eye(4), CAM, img, d, np.full((48, 64), 1e-5, np.float32))
+    cloud = scene_cloud([kf], min_support=0)
+    u, v = cloud.pixel[:, 0], cloud.pixel[:, 1]
+    inner = (u >= 11) & (u < 19) & (v >= 11) & (v < 19)
+    assert not np.any(inner) and len(u) == 48 * 64 - 64
+    assert np.sum((u >= 40) & (u < 50) & (v >= 30) & (v < 40)) == 100
+    assert len(scene_cloud([kf], min_support=0, clipped=256).points) == 48 * 64
+
 def test_voxel_downsample_averages():
     cloud = scene_cloud([_wall_kf(0, 0.0), _wall_kf(1, 0.05)])
     small = voxel_downsample(cloud, 0.2)
