@@ -38,6 +38,20 @@ def _fusion(cfg):
     return WorldFusion(cfg, GROUND, frame, spec, L), frame
 
 
+
+def _started_world(cfg):
+    """An ARWorld started on one floor keyframe looking along +x from 1.5 m, up = +z: (world, keyframe)."""
+    from types import SimpleNamespace
+
+    from ar_demo.world import ARWorld
+    w = ARWorld(cfg, CAM, metric=True)
+    kf = _floor_keyframe(0, [2.0, 0.0, 0.0])
+    published = SimpleNamespace(frame_index=0, timestamp=0.0, idepth=kf.idepth, idepth_var=kf.idepth_var,
+                                camera=kf.camera, T_world_cam=kf.T_world_cam)
+    w.gravity.update(np.array([[0.0, 0.0, 9.81]]), np.eye(3), np.array([0.0]))   # up = +z
+    assert w.start(published, [kf])
+    return w, kf
+
 def test_fusion_keeps_a_surface_seen_once_after_the_camera_turns_away():
     cfg = ARConfig()
     fusion, frame = _fusion(cfg)
@@ -83,15 +97,7 @@ def test_wall_blocks_the_car_and_the_world_body_is_updated_in_place():
 
 
 def test_car_spawns_on_seen_floor_in_view():
-    from ar_demo.world import ARWorld
-    cfg = ARConfig(async_world=False)
-    w = ARWorld(cfg, CAM, metric=True)
-    from types import SimpleNamespace
-    kf = _floor_keyframe(0, [2.0, 0.0, 0.0])
-    published = SimpleNamespace(frame_index=0, timestamp=0.0, idepth=kf.idepth, idepth_var=kf.idepth_var,
-                                camera=kf.camera, T_world_cam=kf.T_world_cam)
-    w.gravity.update(np.array([[0.0, 0.0, 9.81]]), np.eye(3), np.array([0.0]))   # up = +z
-    assert w.start(published, [kf])
+    w, kf = _started_world(ARConfig(async_world=False))
     try:
         assert w.has_car
         T = kf.T_world_cam
@@ -138,16 +144,7 @@ def test_icl_car_lives_in_the_room(tmp_path):
 def test_a_car_that_cannot_move_respawns_as_stuck(stuck_s):
     """With the motors off (drive_speed 0) the car makes no progress: after respawn_stuck_s it
     respawns on seen floor in view (reason "stuck"); with respawn_stuck_s = 0 it never does."""
-    from types import SimpleNamespace
-
-    from ar_demo.world import ARWorld
-    cfg = ARConfig(async_world=False, drive_speed=0.0, respawn_stuck_s=stuck_s)
-    w = ARWorld(cfg, CAM, metric=True)
-    kf = _floor_keyframe(0, [2.0, 0.0, 0.0])
-    published = SimpleNamespace(frame_index=0, timestamp=0.0, idepth=kf.idepth, idepth_var=kf.idepth_var,
-                                camera=kf.camera, T_world_cam=kf.T_world_cam)
-    w.gravity.update(np.array([[0.0, 0.0, 9.81]]), np.eye(3), np.array([0.0]))
-    assert w.start(published, [kf])
+    w, kf = _started_world(ARConfig(async_world=False, drive_speed=0.0, respawn_stuck_s=stuck_s))
     try:
         spawns = w.spawns
         for _ in range(27):                                # 0.9 s: not stuck long enough yet
@@ -168,17 +165,8 @@ def test_a_car_that_cannot_move_respawns_as_stuck(stuck_s):
 def test_a_tipped_car_respawns_or_is_righted_where_it_lies(floor_in_view):
     """A car lying on its roof for respawn_tilt_s respawns on seen floor in view; when the view has no
     floor to offer (camera looking up), it is put back on its wheels where it lies."""
-    from types import SimpleNamespace
-
-    from ar_demo.world import ARWorld
-    cfg = ARConfig(async_world=False, drive_speed=0.0, respawn_stuck_s=0.0, respawn_out_of_view_s=0.0,
-                   respawn_hidden_s=0.0)
-    w = ARWorld(cfg, CAM, metric=True)
-    kf = _floor_keyframe(0, [2.0, 0.0, 0.0])
-    published = SimpleNamespace(frame_index=0, timestamp=0.0, idepth=kf.idepth, idepth_var=kf.idepth_var,
-                                camera=kf.camera, T_world_cam=kf.T_world_cam)
-    w.gravity.update(np.array([[0.0, 0.0, 9.81]]), np.eye(3), np.array([0.0]))
-    assert w.start(published, [kf])
+    w, kf = _started_world(ARConfig(async_world=False, drive_speed=0.0, respawn_stuck_s=0.0,
+                                    respawn_out_of_view_s=0.0, respawn_hidden_s=0.0))
     T_view = kf.T_world_cam if floor_in_view else look_at([0.0, 0.0, 1.5], [2.0, 0.0, 6.0], [0, 0, 1])
     try:
         for _ in range(15):                                # settle on the floor
