@@ -282,12 +282,17 @@ class ARWorld:
         fwd = self.physics.frame.R_phys_world @ T[:3, 2]
         yaw = math.atan2(fwd[1], fwd[0]) + math.pi / 2      # across the view: the video shows its side
         self.physics.spawn_car(xy, yaw)
-        self.spawns += 1
-        self.respawn_reasons[why] = self.respawn_reasons.get(why, 0) + 1
-        self._out_of_view_s = self._tilted_s = self._hidden_s = 0.0
-        self._stuck_from = None
+        self._count_spawn(why)
+        self._out_of_view_s = self._hidden_s = 0.0
         self._inside_geometry = False            # the new place is free (it was the old one that was not)
         return True
+
+    def _count_spawn(self, why: str) -> None:
+        """Book a (re)spawn: counted by reason; the tilt and progress clocks start over."""
+        self.spawns += 1
+        self.respawn_reasons[why] = self.respawn_reasons.get(why, 0) + 1
+        self._tilted_s = 0.0
+        self._stuck_from = None
 
     def _steer_target(self, T: np.ndarray):
         """Where the autopilot steers: towards the floor in the middle of the view, around obstacles."""
@@ -366,8 +371,5 @@ class ARWorld:
             return False
         fwd = ph.car_state().T_phys_base[:3, 0]
         ph.spawn_car(xy, math.atan2(fwd[1], fwd[0]))
-        self.spawns += 1
-        self.respawn_reasons["tipped over, righted in place"] = self.respawn_reasons.get("tipped over, righted in place", 0) + 1
-        self._tilted_s = 0.0
-        self._stuck_from = None
+        self._count_spawn("tipped over, righted in place")
         return True

@@ -60,11 +60,10 @@ class TrajectorySink(OutputSink):
 
     def on_frame(self, event: FrameEvent) -> None:
         r = event.result
-        if r.lost or r.T_world_cam is None:
-            self.poses.add(r.index, r.timestamp, None)   # a start-up correction may give it a pose later
-            return
-        self.poses.add(r.index, r.timestamp, r.T_world_cam)
-        self._file.write(tum_line(r.timestamp, r.T_world_cam))   # line-buffered: one whole line per write
+        T = None if r.lost else r.T_world_cam      # a lost frame: recorded without a pose, which a
+        self.poses.add(r.index, r.timestamp, T)    # start-up correction may give it later
+        if T is not None:
+            self._file.write(tum_line(r.timestamp, T))   # line-buffered: one whole line per write
 
     def on_corrections(self, corrections: dict) -> None:
         changed = [self.poses.correct(idx, T) for idx, T in corrections.items()]
