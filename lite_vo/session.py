@@ -257,7 +257,8 @@ class Session:
             # depth images are decoded when a frame needs one (initialisation, the sampled depth
             # evaluation), except for RGB-D tracking, which needs every one
             defer = self.depth_source != "images"
-            for fr in prefetch(seq, self.start_frame, self.max_frames, defer_depth=defer):
+            # colour is decoded for the keyframes only, unless a sink shows every frame
+            for fr in prefetch(seq, self.start_frame, self.max_frames, defer_depth=defer, defer_color=not want_image):
                 read += 1
                 if getattr(fr, "error", None) or fr.image is None:
                     counts["skipped"] += 1
@@ -279,8 +280,11 @@ class Session:
                         vo.note_dropped()
                         continue
                 depth = fr.depth if getattr(fr, "depth_reader", None) is None else fr.depth_reader
+                color = getattr(fr, "color", None)
+                if color is None:
+                    color = getattr(fr, "color_reader", None)
                 res = vo.process(fr.image, fr.timestamp, depth=depth, T_world_cam=T_given,
-                                 color=getattr(fr, "color", None))   # colour for the keyframes' cloud
+                                 color=color)   # colour for the keyframes' cloud
                 last_index = fr.index
                 if res.event:
                     events.append({"frame": res.index, "t": res.timestamp, "event": res.event})
@@ -423,11 +427,12 @@ def trim_malloc() -> bool:
 
 
 def prefetch(seq, start_frame: int, max_frames: int | None, depth: int = 4, trim_every: int | None = None,
-             defer_depth: bool = False):
+             defer_depth: bool = False, defer_color: bool = False):
     """Frames ``start_frame ..`` of ``seq`` decoded ahead in a reader thread (a camera driver's job).
 
     ``defer_depth``: sequences that can (``seq.frames(start, defer_depth=True)``) leave the depth images
-    undecoded (``Frame.depth_reader`` reads one on demand).
+    undecoded (``Frame.depth_reader`` reads one on demand); ``defer_color`` likewise the colour images
+    (``Frame.color_reader``).
 
     Order is unchanged, so sync runs stay deterministic; an exception in the reader is re-raised
     in the caller. Frames are allocated in the reader thread and freed in the caller's, which
@@ -442,7 +447,7 @@ def prefetch(seq, start_frame: int, max_frames: int | None, depth: int = 4, trim
     def reader():
         try:
             if hasattr(seq, "frames"):
-                source = seq.frames(start_frame, defer_depth=defer_depth)
+                source = seq.frames(start_frame, defer_depth=defer_depth, defer_color=defer_color)
             elif start_frame > 0 and hasattr(seq, "frame"):  # random access: skip without decoding
                 source = (seq.frame(i) for i in range(start_frame, len(seq)))
             else:

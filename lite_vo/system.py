@@ -135,7 +135,8 @@ class _Frame:
     pyramid: list
     depth_native: Any                 # as read (camera resolution, metres) or a reader of it; rectified on first use
     T_world_cam: np.ndarray | None = None
-    color: np.ndarray | None = None   # the input BGR image (native resolution) for colour sources
+    color: Any = None                 # the input BGR image (native resolution) for colour sources, or a
+                                      # function decoding it (called when the frame becomes a keyframe)
     residual: float = 0.0
     mapper: Any = None                # the mapper whose map this frame was tracked against
     sharpness: float = 1.0            # relative to the recent frames (motion blur: < 1)
@@ -251,11 +252,12 @@ class VisualOdometry:
         return self._initialized
 
     def process(self, image: np.ndarray, timestamp: float, depth: np.ndarray | None = None,
-                T_world_cam: np.ndarray | None = None, color: np.ndarray | None = None) -> FrameResult:
+                T_world_cam: np.ndarray | None = None, color: Any = None) -> FrameResult:
         """Track one frame (and map it, in sync mode, when it is its turn).
 
         ``image``: grey, or BGR (then converted here); ``color``: the BGR image of a grey ``image``
-        when the caller has both (keyframes keep colour for the point cloud). ``depth`` (metres,
+        when the caller has both (keyframes keep colour for the point cloud), or a function returning
+        it (or None), called only if the frame becomes a keyframe. ``depth`` (metres,
         0 = invalid, camera resolution; or a function returning it, called only if the frame needs
         it) is used for depth initialisation, in ``depth_source="images"`` and for the depth evaluation; ``T_world_cam`` is required with ``pose_source="given"``.
         """
@@ -355,7 +357,7 @@ class VisualOdometry:
                 raise InputError(f"pose at t={timestamp} contains NaN")
 
     def _preprocess(self, image: np.ndarray, timestamp: float, depth: np.ndarray | None,
-                    color: np.ndarray | None = None) -> _Frame:
+                    color: Any = None) -> _Frame:
         t = time.perf_counter()
         if image.ndim == 3:
             if color is None and image.shape[2] == 3:
@@ -392,9 +394,9 @@ class VisualOdometry:
         """Keep the map as a keyframe when the camera moved enough since the last one."""
         if not self.keyframes.wants(m.T_world_cam, self._scale_id):
             return
-        color = None
-        if frame.color is not None:
-            color = self._rectifier.color(frame.color)
+        color = frame.color() if callable(frame.color) else frame.color   # deferred: decoded now
+        if color is not None:
+            color = self._rectifier.color(color)
         self.keyframes.add(Keyframe.make(m.frame_index, m.timestamp, m.T_world_cam, m.camera, m.image, m.idepth,
                                          m.idepth_var, color, self._scale_id))
 

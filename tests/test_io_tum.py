@@ -276,6 +276,33 @@ def test_colour_frames_keep_the_decoded_colour_image(tmp_path):
     assert g.color is None and g.image.shape == (48, 64)
 
 
+@pytest.mark.parametrize("ext", [".png", ".jpg"])
+def test_deferred_colour_decodes_the_same_image_on_demand(tmp_path, ext):
+    """With ``defer_color`` a frame carries the grey image now and decodes its colour only when asked
+    (keyframes): the same grey image and the same colour as an eager read, None for a grey file."""
+    folder = write_tum_folder(tmp_path, n=3, colour=True)
+    if ext == ".jpg":                                  # the same frames as JPEGs
+        for p in sorted((folder / "rgb").iterdir()):
+            cv2.imwrite(str(p.with_suffix(".jpg")), cv2.imread(str(p), cv2.IMREAD_COLOR))
+            p.unlink()
+        rgb_txt = folder / "rgb.txt"
+        rgb_txt.write_text(rgb_txt.read_text().replace(".png", ".jpg"))
+    seq = open_sequence(folder)
+    eager, lazy = seq.frame(1), seq.frame(1, defer_color=True)
+    assert lazy.color is None and callable(lazy.color_reader) and eager.color_reader is None
+    np.testing.assert_array_equal(lazy.image, eager.image)
+    np.testing.assert_array_equal(lazy.color_reader(), eager.color)
+    path = str(seq.image_paths[1])
+    if ext == ".jpg":                                  # a JPEG's grey image is its luma plane
+        np.testing.assert_array_equal(lazy.image, cv2.imread(path, cv2.IMREAD_GRAYSCALE))
+        assert np.abs(lazy.image.astype(int) - cv2.cvtColor(eager.color, cv2.COLOR_BGR2GRAY)).mean() < 1.0
+    else:                                              # others: OpenCV's conversion of the colour
+        np.testing.assert_array_equal(lazy.image, cv2.cvtColor(eager.color, cv2.COLOR_BGR2GRAY))
+    assert [f.index for f in seq.frames(1, defer_color=True)] == [1, 2]
+    grey = open_sequence(write_tum_folder(tmp_path, n=2, colour=False, name="grey")).frame(0, defer_color=True)
+    assert grey.color is None and grey.color_reader() is None
+
+
 @pytest.mark.parametrize("text, expect", [
     ("500 500 320\n640 480\n", "line 1: expected 'fx fy cx cy [k1 k2 p1 p2 [k3]]' (4, 8 or 9 values), got 3"),
     ("500 500 320 240\n640\n", "line 2: expected 'width height'"),

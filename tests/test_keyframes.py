@@ -128,3 +128,52 @@ def test_store_bound_comes_from_the_profile(synth_small):
         sizes[mb] = (len(kfs), sum(k.nbytes for k in kfs))
     assert sizes[1.5][1] <= 1.5 * 2**20 and sizes[1.5][0] < sizes[32.0][0]
     assert lite_vo.load_profile("board").system.keyframe_memory_mb == 16.0
+
+
+def _colour_jpeg_copy(src, dst):
+    """The sequence ``src`` (grey PNGs) as tinted colour JPEGs in ``dst`` (the same luma, about)."""
+    import shutil
+
+    import cv2
+    shutil.copytree(src, dst)
+    lines = []
+    for line in (dst / "rgb.txt").read_text().splitlines():
+        if line.startswith("#") or not line.strip():
+            lines.append(line)
+            continue
+        t, name = line.split()
+        g = cv2.imread(str(dst / name), cv2.IMREAD_GRAYSCALE).astype(np.float32)
+        bgr = np.clip(np.dstack([0.8 * g, g, 1.2 * g]), 0, 255).astype(np.uint8)
+        (dst / name).unlink()
+        name = name.replace(".png", ".jpg")
+        cv2.imwrite(str(dst / name), bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+        lines.append(f"{t} {name}")
+    (dst / "rgb.txt").write_text("\n".join(lines) + "\n")
+    return dst
+
+
+def test_session_decodes_colour_for_the_keyframes_only(synth_small, tmp_path, monkeypatch):
+    """A run with no sink showing frames reads a colour JPEG's luma plane and decodes its colour only
+    when the frame becomes a keyframe (a colour decode costs ~3x a grey one); the keyframes keep colour."""
+    import lite_vo
+    from lite_vo.io import sequences
+    from lite_vo.keyframes import Keyframe
+    from lite_vo.session import OutputSink, Session
+
+    seq = _colour_jpeg_copy(synth_small, tmp_path / "jpeg")
+    decoded, made = [], []
+    real_decode, real_make = sequences._decode_colour, Keyframe.make
+    monkeypatch.setattr(sequences, "_decode_colour", lambda *a: decoded.append(1) or real_decode(*a))
+    monkeypatch.setattr(Keyframe, "make", staticmethod(lambda *a, **k: made.append(a[7] is not None) or real_make(*a, **k)))
+
+    class Grab(OutputSink):
+        def on_start(self, info):
+            self.store = info.keyframes
+
+    g = Grab()
+    cfg = lite_vo.load_profile("phone", ['system.init="random"'])
+    res = Session(seq, cfg, sinks=[g], pose_source="gt").run()
+    assert len(res.poses) == 45 and 3 <= len(made) < 45
+    assert len(decoded) == len(made) and all(made)            # one colour decode per keyframe, each with colour
+    kfs = g.store.snapshot()
+    assert kfs and all(k.color is not None and k.color.shape[:2] == k.image.shape for k in kfs)

@@ -71,19 +71,67 @@ def _grey_and_colour(img: np.ndarray) -> tuple[np.ndarray, Optional[np.ndarray]]
     return grey, (None if _is_grey(img) else img)
 
 
-def _imread(path: Path) -> tuple[np.ndarray, Optional[np.ndarray]]:
-    """(grey, colour or None) of an image file, decoded once; InputError naming the file."""
-    import cv2
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
+def _read_bytes(path: Path) -> np.ndarray:
+    """The bytes of an image file; InputError naming the file when it is missing or unreadable."""
+    try:
+        data = np.fromfile(str(path), dtype=np.uint8)
+    except OSError as err:
         if not path.is_file():
-            raise InputError(f"{path}: image not found")
+            raise InputError(f"{path}: image not found") from None
+        raise InputError(f"{path}: cannot read image ({err.strerror or err})") from None
+    if data.size == 0:
+        raise InputError(f"{path}: cannot read image (empty file)")
+    return data
+
+
+def _is_jpeg(data: np.ndarray) -> bool:
+    return data.size >= 3 and data[0] == 0xFF and data[1] == 0xD8 and data[2] == 0xFF
+
+
+def _decode_grey_jpeg(data: np.ndarray, path: Path) -> np.ndarray:
+    """The luma plane of a JPEG (no colour conversion: about a third of the time of a colour decode).
+    EXIF orientation is ignored, as for colour (the calibration describes the sensor's layout)."""
+    import cv2
+    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+    if img is None:
+        raise InputError(f"{path}: cannot read image (corrupt, truncated or unsupported format)")
+    return img
+
+
+def _decode_unchanged(data: np.ndarray, path: Path) -> np.ndarray:
+    import cv2
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if img is None:
         raise InputError(f"{path}: cannot read image (corrupt, truncated or unsupported format)")
     if img.dtype == np.uint16:
-        img = (img.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
-    elif img.dtype != np.uint8:
+        return (img.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
+    if img.dtype != np.uint8:
         raise InputError(f"{path}: unsupported image type {img.dtype} (expected 8-bit grey or colour)")
-    return _grey_and_colour(img)
+    return img
+
+
+def _decode_colour(data: np.ndarray, path: Path) -> Optional[np.ndarray]:
+    """The BGR uint8 image of encoded bytes, None for a grey image."""
+    return _grey_and_colour(_decode_unchanged(data, path))[1]
+
+
+def _given(value):
+    return value
+
+
+def _imread(path: Path, defer_colour: bool = False):
+    """(grey, colour) of an image file, read once; InputError naming the file. ``colour`` is the BGR
+    image or None for grey files; with ``defer_colour`` it is a callable returning it. A JPEG's grey
+    image is its luma plane, and with ``defer_colour`` its colour is decoded (from the bytes already
+    read) only when asked: only keyframes need colour. Other formats are decoded once and converted."""
+    data = _read_bytes(path)
+    if _is_jpeg(data):
+        colour = functools.partial(_decode_colour, data, path)
+        grey = _decode_grey_jpeg(data, path)
+    else:
+        grey, c = _grey_and_colour(_decode_unchanged(data, path))
+        colour = functools.partial(_given, c)
+    return grey, (colour if defer_colour else colour())
 
 
 def _check_size(path, img: np.ndarray, camera: Camera, what: str, calib_source: str = "") -> None:
@@ -138,9 +186,12 @@ class FileSequence(Sequence):
     def __len__(self) -> int:
         return len(self.image_paths)
 
-    def _read(self, i: int, defer_depth: bool = False) -> Frame:
+    def _read(self, i: int, defer_depth: bool = False, defer_color: bool = False) -> Frame:
         """Frame ``i``; InputError (naming the file) when it cannot be read."""
-        img, colour = _imread(self.image_paths[i])
+        img, colour = _imread(self.image_paths[i], defer_color)
+        reader_c = None
+        if defer_color:
+            colour, reader_c = None, colour
         _check_size(self.image_paths[i], img, self.camera, "image", self.calib_source)
         depth, reader = None, None
         if self.depth_paths is not None and self.depth_paths[i] is not None:
@@ -149,18 +200,20 @@ class FileSequence(Sequence):
                 reader = functools.partial(_imread_depth, *args)
             else:
                 depth = _imread_depth(*args)
-        return Frame(i, float(self.timestamps[i]), img, depth, colour, depth_reader=reader)
+        return Frame(i, float(self.timestamps[i]), img, depth, colour, depth_reader=reader, color_reader=reader_c)
 
-    def frame(self, i: int, defer_depth: bool = False) -> Frame:
+    def frame(self, i: int, defer_depth: bool = False, defer_color: bool = False) -> Frame:
         """Frame ``i`` (random access; reads the files now). A file that cannot be read gives a
         frame with ``image=None`` and ``error`` set. ``defer_depth``: do not decode the depth
-        image now; ``Frame.depth_reader`` reads it when called (most frames of a run never need it)."""
+        image now; ``Frame.depth_reader`` reads it when called (most frames of a run never need it).
+        ``defer_color``: do not decode the colour image now; ``Frame.color_reader`` decodes it from
+        the bytes already read when called (None for a grey file). The grey image is the same either way."""
         n = len(self)
         if not -n <= i < n:
             raise IndexError(f"frame {i} out of range for {n} frames")
         i %= n
         try:
-            return self._read(i, defer_depth)
+            return self._read(i, defer_depth, defer_color)
         except InputError as err:
             msg = str(err)
             if i in self._listed_in and "not found" in msg:
@@ -171,10 +224,10 @@ class FileSequence(Sequence):
         for i in range(len(self)):
             yield self.frame(i)
 
-    def frames(self, start: int = 0, defer_depth: bool = False) -> Iterator[Frame]:
-        """Frames ``start ..`` in order (see :meth:`frame` for ``defer_depth``)."""
+    def frames(self, start: int = 0, defer_depth: bool = False, defer_color: bool = False) -> Iterator[Frame]:
+        """Frames ``start ..`` in order (see :meth:`frame` for ``defer_depth`` and ``defer_color``)."""
         for i in range(start, len(self)):
-            yield self.frame(i, defer_depth)
+            yield self.frame(i, defer_depth, defer_color)
 
     def check_first_frame(self, scan: int = 30) -> None:
         """Open-time check: the first readable frame (among the first ``scan``) must match the
@@ -182,7 +235,7 @@ class FileSequence(Sequence):
         first_error = None
         for i in range(min(scan, len(self))):
             try:
-                self._read(i)
+                self._read(i, defer_color=True)      # the sizes matter here, not the colour
                 return
             except InputError as err:
                 if "calibration says" in str(err):

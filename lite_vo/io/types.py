@@ -17,12 +17,15 @@ class Frame:
     ``image``: uint8 (H, W) grey at the native resolution (distorted, as recorded), or None for a
     bad frame; ``depth``: float32 (H, W) metres, 0 = invalid, or None when the sequence has no
     depth for it; ``color``: the BGR uint8 (H, W, 3) image as decoded when the source is colour
-    (``image`` is its grey conversion), None for grey sources; ``error``: None, or for a frame
+    (``image`` is its grey version: for image files the decoder's own, a JPEG's luma plane), None
+    for grey sources; ``error``: None, or for a frame
     that could not be read (unreadable, truncated, missing or wrong-size file) a one-line
     ``"<file>: <reason>"`` (then ``image``, ``depth`` and ``color`` are None). Readers yield bad
     frames instead of stopping, so the caller decides how many it tolerates. ``depth_reader``: when
     the frame was read with deferred depth (:meth:`FileSequence.frame` ``defer_depth=True``),
     ``depth`` is None and calling this reads it (``InputError`` naming the file if it cannot).
+    ``color_reader``: when the frame was read with deferred colour (``defer_color=True``), ``color``
+    is None and calling this decodes it (the BGR image, or None for a grey file).
     """
     index: int
     timestamp: float
@@ -31,6 +34,7 @@ class Frame:
     color: Optional[np.ndarray] = None
     error: Optional[str] = None
     depth_reader: Optional[Callable[[], np.ndarray]] = None
+    color_reader: Optional[Callable[[], Optional[np.ndarray]]] = None
 
     @property
     def ok(self) -> bool:
