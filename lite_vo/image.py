@@ -346,8 +346,15 @@ def gaussian_blur(img: np.ndarray, sigma: float, truncate: float = 2.5) -> np.nd
     a = _as_image(img)
     if not sigma > 0:
         return a.copy()
+    kern = gaussian_kernel(sigma, truncate)
+    if min(a.shape) > kern.shape[0] // 2:
+        # OpenCV's SIMD filter, about 12x faster than the loop below at 160x120 (float32 sums: equal
+        # to it within float32 rounding); its reflect-101 border is the loop's mirror when the image is
+        # larger than the kernel's radius
+        import cv2
+        return cv2.sepFilter2D(a, cv2.CV_32F, kern, kern, borderType=cv2.BORDER_REFLECT_101)
     out = np.empty_like(a)
-    _blur_separable(a, gaussian_kernel(sigma, truncate), np.empty_like(a), out)
+    _blur_separable(a, kern, np.empty_like(a), out)
     return out
 
 

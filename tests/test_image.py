@@ -111,3 +111,31 @@ def test_gradient_of_linear_ramp_is_exact():
 
 def test_warmup_runs():
     image.warmup()
+
+
+def _naive_blur(img, kern):
+    """Separable convolution with mirror borders (the pixel at the edge not repeated), in float64."""
+    r = len(kern) // 2
+    h, w = img.shape
+
+    def mirror(i, n):
+        i = -i if i < 0 else i
+        i = 2 * n - 2 - i if i >= n else i
+        return min(max(i, 0), n - 1)
+
+    tmp = np.array([[sum(kern[k + r] * img[y, mirror(x + k, w)] for k in range(-r, r + 1))
+                     for x in range(w)] for y in range(h)])
+    return np.array([[sum(kern[k + r] * tmp[mirror(y + k, h), x] for k in range(-r, r + 1))
+                      for x in range(w)] for y in range(h)])
+
+
+@pytest.mark.parametrize("shape", [(120, 160), (15, 20), (3, 7), (2, 9), (1, 1), (9, 2)])
+@pytest.mark.parametrize("sigma", [0.7, 1.5])
+def test_gaussian_blur_matches_naive_mirror_convolution(shape, sigma):
+    from lite_vo.image import gaussian_blur, gaussian_kernel
+    img = (np.random.default_rng(3).random(shape) * 255).astype(np.float32)
+    out = gaussian_blur(img, sigma)
+    assert out.dtype == np.float32 and out.shape == img.shape
+    np.testing.assert_allclose(out, _naive_blur(img.astype(np.float64), gaussian_kernel(sigma)), atol=2e-4)
+    assert not np.shares_memory(out, img)
+    np.testing.assert_array_equal(gaussian_blur(img, 0.0), img)
