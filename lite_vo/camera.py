@@ -440,6 +440,11 @@ class Rectifier:
         self._identity = (mid.width == nat.width and mid.height == nat.height
                           and np.allclose(mx, np.arange(nat.width)[None, :], atol=1e-6)
                           and np.allclose(my, np.arange(nat.height)[:, None], atol=1e-6))
+        #: colour images may also come decoded at 1/r of the native size (a JPEG decoder scales for free),
+        #: r the largest of 8, 4, 2 that divides the box-averaging factor and the native size, when no
+        #: remap is needed; else 1 (see :meth:`color`)
+        self.color_reduction = next((r for r in (8, 4, 2) if self._identity and k % r == 0
+                                     and nat.width % r == 0 and nat.height % r == 0), 1)
         if self._identity:
             self._map1 = self._map2 = None
         else:
@@ -496,8 +501,20 @@ class Rectifier:
     def color(self, bgr: np.ndarray) -> np.ndarray:
         """Rectified, resized uint8 (H, W, 3) image of a native 3-channel uint8 image (all channels in one
         pass, in uint8: for display, the point cloud and textures; the grey image goes through
-        :meth:`__call__`)."""
+        :meth:`__call__`). When :attr:`color_reduction` ``> 1`` the image may also be ``1/r`` of the
+        native size for ``r`` dividing it (a JPEG decoded at reduced size: only box-averaged further)."""
+        import cv2
         img = np.asarray(bgr)
+        nat = self.camera.intrinsics
+        r = self.color_reduction
+        while r > 1 and img.ndim == 3 and img.shape[2] == 3 and img.shape[:2] != (nat.height // r, nat.width // r):
+            r //= 2
+        if r > 1 and img.ndim == 3 and img.shape[2] == 3:
+            if img.dtype != np.uint8:
+                img = np.clip(img.astype(np.float32) + 0.5, 0, 255).astype(np.uint8)
+            if self.factor > r:
+                return cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
+            return np.array(img, dtype=np.uint8) if np.shares_memory(img, bgr) else img
         self._check(img, "colour image", channels=3)
         if img.dtype != np.uint8:
             img = np.clip(img.astype(np.float32) + 0.5, 0, 255).astype(np.uint8)

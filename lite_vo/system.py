@@ -256,8 +256,9 @@ class VisualOdometry:
         """Track one frame (and map it, in sync mode, when it is its turn).
 
         ``image``: grey, or BGR (then converted here); ``color``: the BGR image of a grey ``image``
-        when the caller has both (keyframes keep colour for the point cloud), or a function returning
-        it (or None), called only if the frame becomes a keyframe. ``depth`` (metres,
+        when the caller has both (keyframes keep colour for the point cloud), or a function ``f(r)``
+        returning it (or None), called only if the frame becomes a keyframe; it may return the image at
+        1/r of the native size (``r``: 1, 2, 4 or 8, what the rectifier can take without a remap). ``depth`` (metres,
         0 = invalid, camera resolution; or a function returning it, called only if the frame needs
         it) is used for depth initialisation, in ``depth_source="images"`` and for the depth evaluation; ``T_world_cam`` is required with ``pose_source="given"``.
         """
@@ -394,7 +395,9 @@ class VisualOdometry:
         """Keep the map as a keyframe when the camera moved enough since the last one."""
         if not self.keyframes.wants(m.T_world_cam, self._scale_id):
             return
-        color = frame.color() if callable(frame.color) else frame.color   # deferred: decoded now
+        color = frame.color
+        if callable(color):            # deferred: decoded now, at a reduced size when the rectifier allows
+            color = color(self._rectifier.color_reduction)
         if color is not None:
             color = self._rectifier.color(color)
         self.keyframes.add(Keyframe.make(m.frame_index, m.timestamp, m.T_world_cam, m.camera, m.image, m.idepth,

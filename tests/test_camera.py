@@ -344,6 +344,29 @@ def test_colour_rectification_matches_the_grey_one_channel_by_channel(cam):
         rect.color(bgr[:-1])
 
 
+def test_colour_may_come_at_a_reduced_size_when_no_remap_is_needed(tmp_path):
+    """Without distortion the keyframe colour can be a JPEG decoded at 1/2 (or 1/4) size: the result has
+    the output size and matches the full-size path within a few grey levels; with distortion (a remap)
+    or at a size that is not 1/r, the native size is required."""
+    icl = Camera.pinhole(481.2, 480.0, 319.5, 239.5, 640, 480)
+    rect = icl.rectifier(320, multiple_of=16)
+    assert rect.color_reduction == 2 and FR1.rectifier(320).color_reduction == 1
+    assert icl.rectifier(160, multiple_of=8).color_reduction == 4
+    bgr = cv2.GaussianBlur((np.random.default_rng(4).random((480, 640, 3)) * 255).astype(np.uint8), (0, 0), 3)
+    path = str(tmp_path / "f.jpg")
+    cv2.imwrite(path, bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    full = rect.color(cv2.imread(path, cv2.IMREAD_COLOR))
+    half = rect.color(cv2.imread(path, cv2.IMREAD_REDUCED_COLOR_2))
+    assert half.shape == full.shape == (240, 320, 3) and half.dtype == np.uint8
+    assert np.abs(half.astype(int) - full).mean() < 1.0
+    quarter = icl.rectifier(160, multiple_of=8).color(cv2.imread(path, cv2.IMREAD_REDUCED_COLOR_2))
+    assert quarter.shape == (120, 160, 3)
+    with pytest.raises(InputError, match="colour image of shape"):
+        rect.color(bgr[::3, ::3])
+    with pytest.raises(InputError, match="colour image of shape"):
+        FR1.rectifier(320).color(bgr[::2, ::2])
+
+
 def test_rectifier_rejects_wrong_image_size():
     rect = FR1.rectifier(320)
     with pytest.raises(InputError, match="does not match the camera's 640x480"):

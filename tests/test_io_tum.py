@@ -298,6 +298,10 @@ def test_deferred_colour_decodes_the_same_image_on_demand(tmp_path, ext):
         assert np.abs(lazy.image.astype(int) - cv2.cvtColor(eager.color, cv2.COLOR_BGR2GRAY)).mean() < 1.0
     else:                                              # others: OpenCV's conversion of the colour
         np.testing.assert_array_equal(lazy.image, cv2.cvtColor(eager.color, cv2.COLOR_BGR2GRAY))
+    half = lazy.color_reader(2)                        # JPEGs decode at half size when asked; others do not
+    expect = (24, 32, 3) if ext == ".jpg" else (48, 64, 3)
+    assert half.shape == expect and np.abs(cv2.resize(eager.color, expect[1::-1], interpolation=cv2.INTER_AREA)
+                                           .astype(int) - half).mean() < 10.0   # the same picture, smaller
     assert [f.index for f in seq.frames(1, defer_color=True)] == [1, 2]
     grey = open_sequence(write_tum_folder(tmp_path, n=2, colour=False, name="grey")).frame(0, defer_color=True)
     assert grey.color is None and grey.color_reader() is None

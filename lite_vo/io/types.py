@@ -25,7 +25,8 @@ class Frame:
     the frame was read with deferred depth (:meth:`FileSequence.frame` ``defer_depth=True``),
     ``depth`` is None and calling this reads it (``InputError`` naming the file if it cannot).
     ``color_reader``: when the frame was read with deferred colour (``defer_color=True``), ``color``
-    is None and calling this decodes it (the BGR image, or None for a grey file).
+    is None and calling this decodes it (the BGR image, or None for a grey file); ``color_reader(r)``
+    with ``r`` 2, 4 or 8 may return it at 1/r of the size instead (JPEGs decode faster so).
     """
     index: int
     timestamp: float
