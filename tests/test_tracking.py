@@ -192,6 +192,28 @@ def test_reference_build_levels_and_immutability():
         TrackingReference.build(pyr, idepth[:100], var, valid, INTR)
 
 
+@pytest.mark.parametrize("stride", [2, 3])
+def test_reference_point_stride_thins_only_the_finest_tracked_level(stride):
+    """``point_stride`` keeps the finest tracked level's points on the lattice (x + y) % stride == 0, the
+    same points with the same values as without it; coarser levels keep all their points."""
+    rng = np.random.default_rng(9)
+    img = rng.uniform(0, 255, (240, 320)).astype(np.float32)
+    idepth = rng.uniform(0.3, 1.0, (240, 320)).astype(np.float32)
+    var = np.full((240, 320), 1e-3, np.float32)
+    valid = rng.uniform(size=(240, 320)) < 0.3
+    pyr = image_pyramid(img, LEVELS)
+    full = TrackingReference.build(pyr, idepth, var, valid, INTR, min_level=1)
+    thin = TrackingReference.build(pyr, idepth, var, valid, INTR, min_level=1, point_stride=stride)
+    a, b = full.levels[1], thin.levels[1]
+    keep = (a.x.astype(int) + a.y.astype(int)) % stride == 0
+    assert 0 < b.num_points == keep.sum() < a.num_points
+    np.testing.assert_array_equal(b.points, a.points[keep])
+    assert abs(b.num_points / a.num_points - 1 / stride) < 0.05
+    assert thin.num_points(0) == full.num_points(0) == 0
+    for lvl in range(2, LEVELS):
+        np.testing.assert_array_equal(thin.levels[lvl].points, full.levels[lvl].points)
+
+
 # ----------------------------------------------------------------------------- synthetic pairs
 @pytest.fixture(scope="module")
 def room_pair():

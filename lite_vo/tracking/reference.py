@@ -83,7 +83,8 @@ class TrackingReference:
 
     @classmethod
     def build(cls, image_pyr, idepth, idepth_var, valid, intrinsics0: PinholeIntrinsics,
-              frame_id=0, smooth_sigma: float | None = None, min_level: int = 0) -> "TrackingReference":
+              frame_id=0, smooth_sigma: float | None = None, min_level: int = 0,
+              point_stride: int = 1) -> "TrackingReference":
         """Build from the reference image pyramid and its level-0 inverse-depth map.
 
         ``image_pyr``: list of float32 images (level 0 = mapping resolution, as from
@@ -95,6 +96,8 @@ class TrackingReference:
         tracker blurs new images with the reference's ``smooth_sigma``, so both always match.
         ``min_level``: levels below it get no points (pass the profile's ``track_level``: the phone
         profile never tracks on level 0, and skipping it halves the build time).
+        ``point_stride``: on level ``min_level`` keep only the pixels with ``(x + y) % point_stride == 0``
+        (2: a checkerboard; thin edges keep every other pixel in any direction).
         """
         if smooth_sigma is None:
             smooth_sigma = TrackingConfig().smooth_sigma
@@ -114,13 +117,17 @@ class TrackingReference:
             if img.shape != ms[lvl].shape:
                 raise ValueError(f"image level {lvl} has shape {img.shape}, expected {ms[lvl].shape}")
             intr = intrinsics0.level(lvl)
-            n = int(np.count_nonzero(ms[lvl])) if lvl >= min_level else 0
+            mask = ms[lvl]
+            if lvl == min_level and point_stride > 1:
+                yy, xx = np.indices(mask.shape)
+                mask = mask & ((xx + yy) % point_stride == 0)
+            n = int(np.count_nonzero(mask)) if lvl >= min_level else 0
             pts = np.empty((n, PTS_COLS), np.float32)
             xs = np.empty(n, np.float32)
             ys = np.empty(n, np.float32)
             if n:
                 src = gaussian_blur(img, smooth_sigma) if smooth_sigma > 0 else img
-                extract_points(ms[lvl], ds[lvl], vs[lvl], src, np.array([intr.fx, intr.fy, intr.cx, intr.cy]), pts, xs, ys)
+                extract_points(mask, ds[lvl], vs[lvl], src, np.array([intr.fx, intr.fy, intr.cx, intr.cy]), pts, xs, ys)
             levels.append(ReferenceLevel(
                 lvl=lvl, intrinsics=intr, x=_ro(xs), y=_ro(ys), intensity=_ro(pts[:, 3].copy()),
                 idepth=_ro(1.0 / pts[:, 2]), idepth_var=_ro(pts[:, 4].copy()), points=_ro(pts)))
