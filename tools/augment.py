@@ -69,18 +69,14 @@ def augment_image(img: np.ndarray, vignette: np.ndarray | None, blur_px: int, ga
 
 
 def read_grey(path: Path) -> np.ndarray:
-    """The 8-bit grey image lite_vo itself would see (decoded in colour, then ``COLOR_BGR2GRAY``:
-    OpenCV's direct grey decoding of a JPEG differs by up to a few grey levels, and the VO reacts
-    to such differences)."""
-    import cv2
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise SystemExit(f"augment: {path}: cannot read the image")
-    if img.dtype == np.uint16:
-        img = (img.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
-    return img
+    """The 8-bit grey image lite_vo itself sees (its own reader: a JPEG's luma plane, other formats
+    decoded and converted with ``COLOR_BGR2GRAY``; the VO reacts to differences of a grey level)."""
+    from lite_vo.errors import InputError
+    from lite_vo.io.sequences import _imread
+    try:
+        return _imread(Path(path), defer_colour=True)[0]
+    except InputError as err:
+        raise SystemExit(f"augment: {err}") from None
 
 
 def _read_rgb_list(src: Path) -> list[tuple[str, float, str]]:
