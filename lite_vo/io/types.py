@@ -35,7 +35,7 @@ class Frame:
     color: Optional[np.ndarray] = None
     error: Optional[str] = None
     depth_reader: Optional[Callable[[], np.ndarray]] = None
-    color_reader: Optional[Callable[[], Optional[np.ndarray]]] = None
+    color_reader: Optional[Callable[..., Optional[np.ndarray]]] = None
 
     @property
     def ok(self) -> bool:
