@@ -545,6 +545,28 @@ def test_budget_subsamples_candidates(tex):
     assert all(free.update(f).stride == 1 for f, _ in frames[1:])
 
 
+def test_stereo_stride_searches_a_rotating_share_of_the_candidates(tex):
+    """``stereo_stride = k``: every iteration searches about 1/k of what stride 1 searches, and the budget
+    can only raise the stride further."""
+    frames = _plane_frames(tex, 5, K_MAP)
+
+    def searched(st):
+        return st.updated + st.created + st.inconsistent + st.failed
+
+    runs = {}
+    for k in (1, 2):
+        m = Mapper(dataclasses.replace(MappingConfig(), stereo_stride=k), K_MAP)
+        m.initialize_random(frames[0][0])
+        runs[k] = [m.update(f) for f, _ in frames[1:]]
+    assert all(st.stride == 1 for st in runs[1]) and all(st.stride == 2 for st in runs[2])
+    ratio = sum(searched(st) for st in runs[2]) / sum(searched(st) for st in runs[1])
+    assert 0.35 < ratio < 0.65
+    tight = Mapper(dataclasses.replace(MappingConfig(), stereo_stride=2, budget_ms=0.01), K_MAP)
+    tight.initialize_random(frames[0][0])
+    strides = [tight.update(f).stride for f, _ in frames[1:]]
+    assert min(strides) >= 2 and max(strides) > 2
+
+
 def test_stage_cpu_times_only_when_asked(tex):
     frames = _plane_frames(tex, 3, K_MAP)
     m = Mapper(MappingConfig(), K_MAP)

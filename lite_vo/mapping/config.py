@@ -84,4 +84,7 @@ class MappingConfig:
     fill_validity: float = param(0.0, "validity of a hypothesis created by hole filling", 0.0, 1000.0)
     # scheduling
     budget_ms: float = param(0.0, "time budget per mapping iteration; limits stereo updates when > 0", 0.0, 10000.0)
+    stereo_stride: int = param(1, "search only every k-th stereo candidate per mapping iteration (rotating, so each "
+                               "pixel is searched every k-th iteration: more baseline per update, 1/k of the stereo "
+                               "cost); the time budget may sub-sample further", 1, 16)
     buffer_size: int = param(12, "past frames kept as stereo references", 1, 200)

@@ -405,7 +405,7 @@ class Mapper:
         cur, s, cfg = self._cur, self.state, self.config
         n_cand = int(np.count_nonzero(cur.maxgrad >= cfg.min_grad))
         stats.candidates = n_cand
-        stride = self._budget_stride(n_cand)
+        stride = max(self._budget_stride(n_cand), cfg.stereo_stride)
         stats.stride = stride
         status = np.zeros((self.h, self.w), np.int8)
         if len(self._buffer) > 0 and self.h > 6 and self.w > 6:
