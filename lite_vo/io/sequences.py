@@ -88,21 +88,25 @@ def _is_jpeg(data: np.ndarray) -> bool:
     return data.size >= 3 and data[0] == 0xFF and data[1] == 0xD8 and data[2] == 0xFF
 
 
-def _decode_grey_jpeg(data: np.ndarray, path: Path) -> np.ndarray:
-    """The luma plane of a JPEG (no colour conversion: about a third of the time of a colour decode).
-    EXIF orientation is ignored, as for colour (the calibration describes the sensor's layout)."""
+def _imdecode(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
+    """``cv2.imdecode`` of the bytes of ``path``; InputError naming the file when they do not decode."""
     import cv2
-    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+    img = cv2.imdecode(data, flags)
     if img is None:
         raise InputError(f"{path}: cannot read image (corrupt, truncated or unsupported format)")
     return img
 
 
+def _decode_grey_jpeg(data: np.ndarray, path: Path) -> np.ndarray:
+    """The luma plane of a JPEG (no colour conversion: about a third of the time of a colour decode).
+    EXIF orientation is ignored, as for colour (the calibration describes the sensor's layout)."""
+    import cv2
+    return _imdecode(data, path, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+
+
 def _decode_unchanged(data: np.ndarray, path: Path) -> np.ndarray:
     import cv2
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(f"{path}: cannot read image (corrupt, truncated or unsupported format)")
+    img = _imdecode(data, path, cv2.IMREAD_UNCHANGED)
     if img.dtype == np.uint16:
         return (img.astype(np.float32) / 257.0 + 0.5).astype(np.uint8)
     if img.dtype != np.uint8:
@@ -116,9 +120,7 @@ def _decode_colour(data: np.ndarray, path: Path, reduce: int = 1) -> Optional[np
     import cv2
     flags = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}
     if reduce in flags:
-        img = cv2.imdecode(data, flags[reduce] | cv2.IMREAD_IGNORE_ORIENTATION)
-        if img is None:
-            raise InputError(f"{path}: cannot read image (corrupt, truncated or unsupported format)")
+        img = _imdecode(data, path, flags[reduce] | cv2.IMREAD_IGNORE_ORIENTATION)
         return None if _is_grey(img) else img
     return _grey_and_colour(_decode_unchanged(data, path))[1]
 
