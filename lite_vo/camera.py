@@ -506,19 +506,17 @@ class Rectifier:
         import cv2
         img = np.asarray(bgr)
         nat = self.camera.intrinsics
-        r = self.color_reduction
-        while r > 1 and img.ndim == 3 and img.shape[2] == 3 and img.shape[:2] != (nat.height // r, nat.width // r):
+        r = self.color_reduction          # the reduction this image was decoded at (1: native size)
+        while r > 1 and not (img.ndim == 3 and img.shape == (nat.height // r, nat.width // r, 3)):
             r //= 2
-        if r > 1 and img.ndim == 3 and img.shape[2] == 3:
-            if img.dtype != np.uint8:
-                img = np.clip(img.astype(np.float32) + 0.5, 0, 255).astype(np.uint8)
-            if self.factor > r:
-                return cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
-            return np.array(img, dtype=np.uint8) if np.shares_memory(img, bgr) else img
-        self._check(img, "colour image", channels=3)
+        if r == 1:
+            self._check(img, "colour image", channels=3)
         if img.dtype != np.uint8:
             img = np.clip(img.astype(np.float32) + 0.5, 0, 255).astype(np.uint8)
-        img = self._warp(img)
+        if r == 1:
+            img = self._warp(img)
+        elif self.factor > r:             # no remap needed here: only the rest of the box average
+            img = cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
         return np.array(img, dtype=np.uint8) if np.shares_memory(img, bgr) else img
 
     def depth(self, depth_m: np.ndarray) -> np.ndarray:
