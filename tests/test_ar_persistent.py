@@ -38,7 +38,6 @@ def _fusion(cfg):
     return WorldFusion(cfg, GROUND, frame, spec, L), frame
 
 
-
 def _started_world(cfg):
     """An ARWorld started on one floor keyframe looking along +x from 1.5 m, up = +z: (world, keyframe)."""
     from types import SimpleNamespace
@@ -51,6 +50,7 @@ def _started_world(cfg):
     w.gravity.update(np.array([[0.0, 0.0, 9.81]]), np.eye(3), np.array([0.0]))   # up = +z
     assert w.start(published, [kf])
     return w, kf
+
 
 def test_fusion_keeps_a_surface_seen_once_after_the_camera_turns_away():
     cfg = ARConfig()

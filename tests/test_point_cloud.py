@@ -63,7 +63,6 @@ def test_points_at_a_depth_discontinuity_are_removed():
     assert len(scene_cloud([kf], min_support=0, max_jump=np.inf).points) == 48 * 64
 
 
-
 def test_points_kept_unobserved_through_clipping_are_left_out():
     """A clipped, flat patch (grey 255 over 10x10 pixels: hypotheses the filter kept unobserved,
     mapping.keep_clipped) gives no points except along its rim (8 neighbours not all clipped); a bright
@@ -80,6 +79,7 @@ def test_points_kept_unobserved_through_clipping_are_left_out():
     assert not np.any(inner) and len(u) == 48 * 64 - 64
     assert np.sum((u >= 40) & (u < 50) & (v >= 30) & (v < 40)) == 100
     assert len(scene_cloud([kf], min_support=0, clipped=256).points) == 48 * 64
+
 
 def test_voxel_downsample_averages():
     cloud = scene_cloud([_wall_kf(0, 0.0), _wall_kf(1, 0.05)])
