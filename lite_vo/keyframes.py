@@ -89,7 +89,8 @@ class Keyframe:
             if np.asarray(image).dtype != np.uint8 else image
         d = np.asarray(idepth, dtype=np.float32)
         ok = np.isfinite(d) & (d > 0)
-        med = float(np.median(1.0 / d[ok])) if ok.any() else float("nan")
+        d_ok = d[ok]
+        med = float(np.median(1.0 / d_ok)) if d_ok.size else float("nan")
         jpg = None
         if color is not None:
             col = np.clip(np.asarray(color, dtype=np.float32) + 0.5, 0, 255).astype(np.uint8) \
@@ -100,7 +101,7 @@ class Keyframe:
             jpg = _frozen(buf.reshape(-1))
         var = np.asarray(idepth_var, dtype=np.float32)
         return cls(int(index), float(timestamp), _frozen(T_world_cam, np.float64), camera, _frozen(img),
-                   _frozen(np.packbits(ok, axis=None)), _frozen(d[ok]), _frozen(var[ok]), jpg, int(scale_id), med)
+                   _frozen(np.packbits(ok, axis=None)), _frozen(d_ok), _frozen(var[ok]), jpg, int(scale_id), med)
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -534,6 +534,26 @@ def test_depth_accuracy_by_hand():
     assert empty["density"] == 0.0 and math.isnan(empty["median_abs_rel_error"])
 
 
+def test_depth_accuracy_float32_maps_as_in_float64():
+    """The map and depth images come as float32 with NaN, inf and negative values: the statistics
+    equal those computed on float64 copies (the tests run in float32, the arithmetic in float64)."""
+    rng = np.random.default_rng(3)
+    gt = rng.uniform(0.5, 4.0, (60, 80)).astype(np.float32)
+    gt[rng.random(gt.shape) < 0.1] = 0.0
+    gt[rng.random(gt.shape) < 0.02] = np.nan
+    idepth = (rng.uniform(0.9, 1.1, gt.shape) / np.maximum(gt, 0.5)).astype(np.float32)
+    idepth[rng.random(gt.shape) < 0.05] = -1.0
+    idepth[rng.random(gt.shape) < 0.02] = np.inf
+    valid = rng.random(gt.shape) < 0.5
+    d64, g64 = idepth.astype(np.float64), gt.astype(np.float64)
+    m = valid & np.isfinite(g64) & (g64 > 0) & np.isfinite(d64) & (d64 > 0)
+    rel = np.abs(1.0 / d64[m] - g64[m]) / g64[m]
+    acc = depth_accuracy(idepth, valid, gt)
+    assert acc["compared"] == int(m.sum()) > 1000
+    assert acc["median_abs_rel_error"] == float(np.median(rel))
+    assert acc["within_5pct"] == float(np.mean(rel <= 0.05)) and acc["within_10pct"] == float(np.mean(rel <= 0.10))
+
+
 def test_budget_subsamples_candidates(tex):
     frames = _plane_frames(tex, 4, K_MAP)
     m = Mapper(dataclasses.replace(MappingConfig(), budget_ms=0.01), K_MAP)

@@ -454,19 +454,22 @@ def depth_accuracy(idepth: np.ndarray, valid: np.ndarray, depth_gt_m: np.ndarray
     density: share of ALL pixels with a hypothesis; the error statistics compare 1/idepth with the
     ground truth where it is > 0 (and finite): median absolute relative error, share within 5% / 10%.
     """
-    idepth = np.asarray(idepth, dtype=np.float64)
+    idepth = np.asarray(idepth)
     valid = np.asarray(valid, dtype=bool)
-    gt = np.asarray(depth_gt_m, dtype=np.float64)
+    gt = np.asarray(depth_gt_m)
     if idepth.shape != valid.shape or idepth.shape != gt.shape:
         raise InputError(f"depth_accuracy: shapes differ: idepth {idepth.shape}, valid {valid.shape}, "
                          f"depth {gt.shape}")
     n = idepth.size
     density = float(np.count_nonzero(valid)) / n if n else 0.0
+    # the tests in the arrays' own type (a float32 value is finite and > 0 exactly when its float64 is),
+    # the arithmetic in float64 on the compared pixels only
     m = valid & np.isfinite(gt) & (gt > 0) & np.isfinite(idepth) & (idepth > 0)
     if not np.any(m):
         return {"density": density, "median_abs_rel_error": float("nan"),
                 "within_5pct": 0.0, "within_10pct": 0.0, "compared": 0}
-    rel = np.abs(1.0 / idepth[m] - gt[m]) / gt[m]
+    g = gt[m].astype(np.float64)
+    rel = np.abs(1.0 / idepth[m].astype(np.float64) - g) / g
     return {"density": density, "median_abs_rel_error": float(np.median(rel)),
             "within_5pct": float(np.mean(rel <= 0.05)), "within_10pct": float(np.mean(rel <= 0.10)),
             "compared": int(m.sum())}
