@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import tracking_level
-from .geometry import tum_from_pose
+from .geometry.quaternion import quat_xyzw_one
 from .io import Trajectory, write_file_atomic, write_ply, write_ply_parts, write_trajectory
 from .io.trajectory import write_trajectory_kitti
 from .profiling.machine import cpu_model
@@ -37,8 +37,10 @@ log = logging.getLogger(__name__)
 
 def tum_line(t: float, T: np.ndarray) -> str:
     """One TUM line ``t tx ty tz qx qy qz qw`` (newline included) of a 4x4 pose."""
-    r = tum_from_pose(np.asarray(T, dtype=np.float64)[None])[0]
-    return f"{t:.6f} {r[0]:.9g} {r[1]:.9g} {r[2]:.9g} {r[3]:.9f} {r[4]:.9f} {r[5]:.9f} {r[6]:.9f}\n"
+    T = np.asarray(T, dtype=np.float64)
+    x, y, z = (float(v) for v in T[:3, 3])
+    qx, qy, qz, qw = quat_xyzw_one(T[:3, :3])          # tum_from_pose's quaternion, for one pose
+    return f"{t:.6f} {x:.9g} {y:.9g} {z:.9g} {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}\n"
 
 
 class TrajectorySink(OutputSink):

@@ -7,6 +7,7 @@ from lite_vo.geometry import (
     log_se3, log_sim3, log_so3, make_pose, pose_from_tum, quat_xyzw_from_rotmat, rotmat_from_quat_xyzw,
     transform_points, tum_from_pose, vee,
 )
+from lite_vo.geometry.quaternion import quat_xyzw_one
 
 RNG_SEED = 1234
 
@@ -120,6 +121,20 @@ def test_quaternion_round_trip_and_sign():
     assert np.all(q[:, 3] >= 0)
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
     np.testing.assert_allclose(rotmat_from_quat_xyzw(q), R, atol=1e-12)
+
+
+def test_one_pose_quaternion_has_the_bits_of_the_vectorised_one():
+    """The trajectory writer's per-frame quaternion (Python floats) equals quat_xyzw_from_rotmat bit for
+    bit: small and large angles, 180-degree turns about each axis (every branch of Shepperd's method)."""
+    r = rng()
+    Rs = list(exp_so3(r.normal(size=(3000, 3)) * r.choice([1e-7, 0.1, 1.0, 3.0, np.pi], size=(3000, 1))))
+    Rs += [np.eye(3), np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]), np.diag([-1.0, -1, 1])]
+    branches = set()
+    for R in Rs:
+        q = quat_xyzw_from_rotmat(R)
+        assert np.array_equal(np.array(quat_xyzw_one(R)), q)
+        branches.add(int(np.argmax([1 + np.trace(R), *(1 + 2 * R[i, i] - np.trace(R) for i in range(3))])))
+    assert branches == {0, 1, 2, 3}
 
 
 def test_zero_quaternion_is_an_error():
