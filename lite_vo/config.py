@@ -54,6 +54,11 @@ class SystemConfig:
     keyframe_memory_mb: float = param(32.0, "bound of the keyframe history (whole-scene map.ply, relocalisation, AR "
                                       "world; compact keyframes: about 0.44 MB at 320x240 with colour): older, redundant keyframes are "
                                       "thinned to stay under it", 1.0, 100000.0)
+    keyframe_min_move: float = param(0.03, "a published map becomes a keyframe when the camera moved more than this "
+                                     "times the map's median depth since the newest keyframe (or turned more than "
+                                     "keyframe_min_turn_deg; or the map has a new scale)", 0.0, 10.0)
+    keyframe_min_turn_deg: float = param(3.0, "... or turned more than this many degrees (see keyframe_min_move)",
+                                         0.0, 180.0)
     depth_eval_every: int = param(4, "when the sequence has depth images: compare every k-th mapped frame's map with "
                                   "its depth image (run.json depth_accuracy; the comparison is evaluation, not "
                                   "odometry: sampling keeps it off the frame budget); 0 = never", 0, 1000)

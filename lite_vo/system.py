@@ -240,7 +240,9 @@ class VisualOdometry:
         self._initialized = False
         self.metric = False  # True when the map has metric scale (depth images)
         # keyframe history (thread-safe; filled where maps are published, read by sinks)
-        self.keyframes = KeyframeStore(max_bytes=int(config.system.keyframe_memory_mb * 2**20))
+        self.keyframes = KeyframeStore(max_bytes=int(config.system.keyframe_memory_mb * 2**20),
+                                       min_translation_rel=config.system.keyframe_min_move,
+                                       min_rotation_deg=config.system.keyframe_min_turn_deg)
         self._scale_id = 0   # a new id for every map with a new monocular scale
         if config.system.mode == "realtime" and depth_source == "filter":
             self._thread = threading.Thread(target=self._mapping_loop, name="lite_vo-mapping", daemon=True)

@@ -130,6 +130,36 @@ def test_store_bound_comes_from_the_profile(synth_small):
     assert lite_vo.load_profile("board").system.keyframe_memory_mb == 16.0
 
 
+def test_keyframe_spacing_comes_from_the_profile(synth_small):
+    """``system.keyframe_min_move`` / ``keyframe_min_turn_deg`` decide when a map becomes a keyframe: a
+    wider spacing makes fewer keyframes on the same run (poses given: the same maps either way), and
+    consecutive keyframes are at least that far apart (moved or turned)."""
+    import lite_vo
+    from lite_vo.session import OutputSink, Session
+
+    class Grab(OutputSink):
+        def on_start(self, info):
+            self.store = info.keyframes
+
+    kfs = {}
+    for move, turn in ((0.03, 3.0), (0.15, 15.0)):
+        g = Grab()
+        cfg = lite_vo.load_profile("phone", ['system.init="random"', f"system.keyframe_min_move={move}",
+                                             f"system.keyframe_min_turn_deg={turn}"])
+        Session(synth_small, cfg, sinks=[g], pose_source="gt").run()
+        assert (g.store.min_translation_rel, g.store.min_rotation_deg) == (move, turn)
+        kfs[move] = g.store.snapshot()
+    assert 2 <= len(kfs[0.15]) < len(kfs[0.03])
+    for a, b in zip(kfs[0.15], kfs[0.15][1:]):
+        if a.scale_id != b.scale_id:
+            continue
+        depth = a.median_depth if np.isfinite(a.median_depth) else 1.0     # as the store measures it
+        moved = np.linalg.norm(b.T_world_cam[:3, 3] - a.T_world_cam[:3, 3]) / depth
+        c = (np.trace(a.T_world_cam[:3, :3].T @ b.T_world_cam[:3, :3]) - 1.0) / 2.0
+        turned = np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+        assert moved > 0.15 or turned > 15.0, (moved, turned)
+
+
 def _colour_jpeg_copy(src, dst):
     """The sequence ``src`` (grey PNGs) as tinted colour JPEGs in ``dst`` (the same luma, about)."""
     import shutil
