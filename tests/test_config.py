@@ -226,7 +226,7 @@ def test_profiles_are_installed_as_package_data(tmp_path):
                           text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     names, map_every = proc.stdout.split()
-    assert names.split(",") == [n[:-5] for n in shipped] and map_every == "3"
+    assert names.split(",") == [n[:-5] for n in shipped] and map_every == "4"
 
 
 def test_wheel_contains_the_profiles(tmp_path):

@@ -44,7 +44,7 @@ def test_board_saves_work_compared_to_phone():
     assert board.resolution == phone.resolution
     assert board.tracking.max_iter_finest < phone.tracking.max_iter_finest
     assert board.tracking.max_iter_coarse < phone.tracking.max_iter_coarse
-    assert board.system.map_every == 3 and board.system.numba_threads == 1
+    assert board.system.map_every == 4 and board.system.numba_threads == 1
     assert board.mapping.budget_ms > 0
 
 
