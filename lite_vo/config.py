@@ -48,8 +48,9 @@ class SystemConfig:
     """How tracking and mapping are scheduled and initialised."""
     mode: str = param("sync", "sync: deterministic, one thread; realtime: two threads at the frames' timestamps",
                       choices=("sync", "realtime"))
-    map_every: int = param(1, "sync mode: run a mapping iteration every k-th tracked frame", 1, 30)
-    map_every_startup: int = param(4, "sync mode: mapping interval during the first startup_s seconds (paper: every 4th frame)", 1, 30)
+    map_every: int = param(1, "a mapping iteration on every k-th tracked frame (sync mode; realtime mode maps at most "
+                           "that often, less when the mapping thread is busy)", 1, 30)
+    map_every_startup: int = param(4, "mapping interval during the first startup_s seconds (paper: every 4th frame)", 1, 30)
     startup_s: float = param(3.0, "duration of the start-up phase in seconds", 0.0, 60.0)
     keyframe_memory_mb: float = param(32.0, "bound of the keyframe history (whole-scene map.ply, relocalisation, AR "
                                       "world; compact keyframes: about 0.44 MB at 320x240 with colour): older, redundant keyframes are "

@@ -720,7 +720,6 @@ class VisualOdometry:
         frame.mapper = self._mapper
         if frame.sharpness < self.config.system.blur_min_sharpness:
             return False  # motion blur: tracked only (no stereo reference, no map in it, no new hypotheses)
-        in_startup = frame.timestamp - self._t0 < self.config.system.startup_s
         if self._thread is None:  # sync
             if not self._mapping_due(frame):
                 # not mapped, but still a stereo reference for later frames
@@ -730,8 +729,8 @@ class VisualOdometry:
                 return False
             self._map_frame(frame)
             return True
-        if in_startup and not self._mapping_due(frame):
-            return False  # the start-up throttle of the paper applies in realtime mode too
+        if not self._mapping_due(frame):
+            return False  # realtime maps at most as often as sync mode (start-up throttle, map_every)
         with self._cond:  # realtime: replace (skip) an older pending frame
             self._pending = frame
             self._cond.notify()

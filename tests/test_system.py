@@ -2,6 +2,8 @@
 loss and recovery, sinks, bad input."""
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -73,6 +75,25 @@ def test_realtime_mode_uses_a_mapping_thread_and_tracks(synth_small):
     assert rt_res.timing["mapping"]["count"] >= 2  # the mapping thread ran
     rt = evaluate(seq.groundtruth, _traj(rt_res), align="se3").to_dict()
     assert rt["ate_rmse_m"] < max(3 * sync["ate_rmse_m"], 0.01), (rt, sync)
+
+
+def test_realtime_mode_maps_at_most_every_map_every_th_frame(synth_small):
+    """Realtime mode maps at most as often as sync mode: only frames whose index is a multiple of
+    ``map_every`` (after the start-up, ``map_every_startup`` before) reach the mapping thread."""
+    seq, frames = _frames(synth_small, 40)
+    cfg = lite_vo.load_profile("phone", ['system.init="depth"', 'system.mode="realtime"', "system.map_every=3",
+                                         "system.map_every_startup=5", "system.startup_s=0.5"])
+    mapped = []
+    with VisualOdometry(seq.camera, cfg) as vo:
+        t0 = frames[0].timestamp
+        for fr in frames:
+            vo.process(fr.image, fr.timestamp, depth=fr.depth)
+            time.sleep(0.02)                                # let the mapping thread take the frame
+            mapped += [(m.frame_index, m.timestamp - t0) for m in vo.take_published_maps()]
+    later = [i for i, t in mapped[1:] if t >= 0.5]         # the first map is the initialisation's
+    early = [i for i, t in mapped[1:] if t < 0.5]
+    assert len(later) >= 3, mapped
+    assert all(i % 3 == 0 for i in later) and all(i % 5 == 0 for i in early), mapped
 
 
 def test_loss_is_reported_as_a_gap_and_tracking_recovers(synth_small):
