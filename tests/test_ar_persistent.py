@@ -120,9 +120,10 @@ def test_icl_car_lives_in_the_room(tmp_path):
     >= 90 % where in view, hidden <= 5 %, tilt <= 20 deg in >= 90 %. The car's path is chaotic (small
     changes of the VO or of the world updates send it elsewhere), so the benchmark judges the targets on
     the median over five world rebuild intervals (K = 3..7), and this single run (K = 5) keeps a margin
-    below the targets for the in-view share and the upright share: over K = 3..7 the runs range 54-86 %
-    in view and 89-100 % upright (a car that tipped over lies on its side for half a second before it
-    respawns); on a surface and hidden are held to the targets themselves."""
+    below the targets for the in-view share and the upright share: over K = 3..7 the runs range 64-76 %
+    in view and 79-100 % upright (54-86 % and 89-100 % on earlier VO draws; a car that tipped over lies on
+    its side for half a second before it respawns); on a surface and hidden are held to the targets
+    themselves."""
     seq = shared_sequence("icl_livingroom_211")
     from ar_demo.evaluate import evaluate_ar_run
     from ar_demo.render import create_context

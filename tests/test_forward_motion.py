@@ -21,7 +21,7 @@ def test_driving_profile_tracks_at_the_mapping_resolution_with_brightness_every_
     assert driving.resolution.map_width == phone.resolution.map_width
     assert driving.resolution.track_level == 0 < phone.resolution.track_level
     assert driving.tracking == phone.tracking and phone.tracking.affine_brightness   # on by default
-    assert driving.system.map_every == 2 and phone.system.map_every == 1
+    assert driving.system.map_every == 2 and phone.system.map_every == 4
     # everything else is the phone profile's
     assert driving.mapping == phone.mapping
     assert driving.system.map_every_startup == phone.system.map_every_startup

@@ -36,7 +36,7 @@ def test_paper_profiles_are_the_six_table_rows_finest_first():
 def test_phone_is_the_default_and_keeps_the_papers_startup_mapping_interval():
     phone = load_profile("phone")
     assert load_profile() == phone
-    assert phone.system.map_every_startup == 4 and phone.system.map_every == 1
+    assert phone.system.map_every_startup == 4 and phone.system.map_every == 4
 
 
 def test_board_saves_work_compared_to_phone():
