@@ -58,7 +58,8 @@ class SystemConfig:
     keyframe_min_move: float = param(0.03, "a published map becomes a keyframe when the camera moved more than this "
                                      "times the map's median depth since the newest keyframe (or turned more than "
                                      "keyframe_min_turn_deg; or the map has a new scale)", 0.0, 10.0)
-    keyframe_min_turn_deg: float = param(3.0, "... or turned more than this many degrees (see keyframe_min_move)",
+    keyframe_min_turn_deg: float = param(3.0, "a published map becomes a keyframe when the camera turned more than "
+                                         "this many degrees since the newest keyframe (or moved: keyframe_min_move)",
                                          0.0, 180.0)
     depth_eval_every: int = param(4, "when the sequence has depth images: compare every k-th mapped frame's map with "
                                   "its depth image (run.json depth_accuracy; the comparison is evaluation, not "
