@@ -157,3 +157,18 @@ def test_project_to_se3_restores_a_drifted_rotation():
     np.testing.assert_allclose(fixed[:3, :3] @ fixed[:3, :3].T, np.eye(3), atol=1e-12)
     np.testing.assert_allclose(fixed, T, atol=1e-12)
     np.testing.assert_allclose(project_to_se3(T), T, atol=1e-12)
+
+
+def test_project_to_se3_single_pose_path_equals_the_batched_one_bit_for_bit():
+    """One 4x4 pose takes a shortcut (the tracking hot path): it must give exactly what the batched
+    code gives, also for drifted rotations and reflections (det -1: the last singular vector flips)."""
+    from lite_vo.geometry import project_to_se3
+    g = rng()
+    poses = exp_se3(g.normal(size=(300, 6)))
+    poses[:, :3, :3] += g.normal(scale=1e-3, size=(300, 3, 3))
+    poses[::3, :3, :3] = -poses[::3, :3, :3]                           # reflections
+    poses[1::3, :3, :3] = poses[1::3, :3, :3] @ np.diag([1.0, 1.0, -1.0])
+    batched = project_to_se3(poses)
+    for T, B in zip(poses, batched):
+        assert np.array_equal(project_to_se3(T), B)
+    assert np.all(np.linalg.det(batched[:, :3, :3]) > 0)

@@ -336,6 +336,17 @@ def test_residual_spread_ignores_a_common_offset():
     assert all(np.isnan(v) for v in _residual_spread(np.ones(20)))   # every 4th of 20: fewer than 8, unknown
 
 
+def test_residual_spread_equals_numpys_median_and_mean():
+    """The hot-path medians (sorted copies) give np.median's values bit for bit, odd and even sizes."""
+    from lite_vo.tracking.tracker import _residual_spread
+    rng = np.random.default_rng(5)
+    for n in (32, 33, 34, 35, 4001, 9422):
+        r = rng.standard_t(3, size=n) * 4.0
+        q = r[::4]
+        dev = np.abs(q - np.median(q))
+        assert _residual_spread(r) == (float(1.4826 * np.median(dev)), float(np.mean(dev)))
+
+
 def test_bright_saturated_garbage_fails_good_ratio(room_pair):
     _, ref = room_pair
     white = image_pyramid(np.full((240, 320), 255.0, np.float32), LEVELS)

@@ -66,6 +66,19 @@ def project_to_se3(T: np.ndarray) -> np.ndarray:
     """
     T = np.asarray(T, dtype=np.float64)
     U, _, Vt = np.linalg.svd(T[..., :3, :3])
+    if T.shape == (4, 4):
+        # one pose (the tracking hot path, three per frame): the same values as the batched code below
+        # without its array bookkeeping; det(U Vt) is +-1, its sign from the cofactor expansion
+        R = U @ Vt
+        (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+        if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0:
+            U[:, 2] = -U[:, 2]
+            R = U @ Vt
+        out = np.zeros((4, 4))
+        out[:3, :3] = R
+        out[:3, 3] = T[:3, 3]
+        out[3, 3] = 1.0
+        return out
     D = np.ones(T.shape[:-2] + (3,))
     D[..., 2] = np.sign(np.linalg.det(U @ Vt))
     return make_pose((U * D[..., None, :]) @ Vt, T[..., :3, 3])

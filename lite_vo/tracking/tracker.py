@@ -8,6 +8,7 @@ Imports numpy, :mod:`lite_vo.image`, :mod:`lite_vo.geometry` and the tracking ke
 from __future__ import annotations
 
 import itertools
+import statistics
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
@@ -127,8 +128,15 @@ def _residual_spread(r: np.ndarray) -> tuple[float, float]:
     r = r[::4]
     if r.size < 8:
         return float("nan"), float("nan")
-    dev = np.abs(r - np.median(r))
-    return float(1.4826 * np.median(dev)), float(np.mean(dev))
+    dev = np.abs(r - _sorted_median(np.sort(r)))
+    return float(1.4826 * _sorted_median(np.sort(dev))), float(np.mean(dev))
+
+
+def _sorted_median(s: np.ndarray) -> float:
+    """Median of an already sorted 1-D array of finite values: the same value as ``np.median`` (the middle
+    element, or the two middle ones summed and halved), without its per-call overhead (tracking hot path)."""
+    k = s.size // 2
+    return s[k] if s.size % 2 else (s[k - 1] + s[k]) / 2
 
 
 class Tracker:
@@ -207,7 +215,7 @@ class Tracker:
             if not res.lost and np.isfinite(res.coarse_err):
                 self._recent_coarse.append(res.coarse_err)
             return res
-        limit = max(c.hypothesis_residual_factor * float(np.median(self._recent_coarse)), c.hypothesis_min_energy)
+        limit = max(c.hypothesis_residual_factor * statistics.median(self._recent_coarse), c.hypothesis_min_energy)
         if not res.lost and res.coarse_err <= limit:
             res.hypothesis = "first"
         else:
