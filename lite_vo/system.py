@@ -410,7 +410,8 @@ class VisualOdometry:
         tref = TrackingReference.build(frame.pyramid, idepth, idepth_var, valid, self.map_intrinsics, frame.index,
                                        smooth_sigma=self.config.tracking.smooth_sigma,
                                        min_level=self.track_level,
-                                       point_stride=self.config.tracking.point_stride)
+                                       point_stride=self.config.tracking.point_stride,
+                                       coarse_point_stride=self.config.tracking.coarse_point_stride)
         self.timers.add("build_reference", (time.perf_counter() - t) * 1e3)
         arrays = [np.array(a) for a in (idepth, idepth_var, valid)]
         for a in arrays:

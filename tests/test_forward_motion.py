@@ -22,9 +22,11 @@ def test_driving_profile_tracks_at_the_mapping_resolution_with_brightness_every_
     phone, driving = lite_vo.load_profile("phone"), lite_vo.load_profile("driving")
     assert driving.resolution.map_width == phone.resolution.map_width
     assert driving.resolution.track_level == 0 < phone.resolution.track_level
-    # tracking as phone's but with every map point (its KITTI rows were measured so; phone: a third)
-    assert driving.tracking.point_stride == 1 and phone.tracking.point_stride == 3
-    assert dataclasses.replace(driving.tracking, point_stride=3) == phone.tracking
+    # tracking as phone's but with every map point (its KITTI rows were measured so; phone: a third of
+    # the finest level's, half of the next one's)
+    assert driving.tracking.point_stride == driving.tracking.coarse_point_stride == 1
+    assert (phone.tracking.point_stride, phone.tracking.coarse_point_stride) == (3, 2)
+    assert dataclasses.replace(driving.tracking, point_stride=3, coarse_point_stride=2) == phone.tracking
     assert phone.tracking.affine_brightness   # on by default
     assert driving.system.map_every == 2 and phone.system.map_every == 4
     # everything else is the phone profile's

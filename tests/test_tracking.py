@@ -214,6 +214,25 @@ def test_reference_point_stride_thins_only_the_finest_tracked_level(stride):
         np.testing.assert_array_equal(thin.levels[lvl].points, full.levels[lvl].points)
 
 
+def test_reference_coarse_point_stride_thins_only_the_next_coarser_level():
+    """``coarse_point_stride`` does to the level above the finest tracked one what ``point_stride`` does
+    to the finest: the same points with the same values on the lattice, the other levels untouched."""
+    rng = np.random.default_rng(10)
+    img = rng.uniform(0, 255, (240, 320)).astype(np.float32)
+    idepth = rng.uniform(0.3, 1.0, (240, 320)).astype(np.float32)
+    var = np.full((240, 320), 1e-3, np.float32)
+    valid = rng.uniform(size=(240, 320)) < 0.3
+    pyr = image_pyramid(img, LEVELS)
+    full = TrackingReference.build(pyr, idepth, var, valid, INTR, min_level=1, point_stride=3)
+    thin = TrackingReference.build(pyr, idepth, var, valid, INTR, min_level=1, point_stride=3, coarse_point_stride=2)
+    a, b = full.levels[2], thin.levels[2]
+    keep = (a.x.astype(int) + a.y.astype(int)) % 2 == 0
+    assert 0 < b.num_points == keep.sum() < a.num_points
+    np.testing.assert_array_equal(b.points, a.points[keep])
+    for lvl in [1] + list(range(3, LEVELS)):
+        np.testing.assert_array_equal(thin.levels[lvl].points, full.levels[lvl].points)
+
+
 # ----------------------------------------------------------------------------- synthetic pairs
 @pytest.fixture(scope="module")
 def room_pair():

@@ -56,8 +56,11 @@ class TrackingConfig:
     interpolation_coarse: str = param("bilinear", "sampling on the coarser levels (bilinear: smoother, wider basin)",
                                       choices=("bilinear", "bspline"))
     point_stride: int = param(1, "on the finest tracking level use only the map points with (x + y) % point_stride == 0 "
-                              "(2: a checkerboard, half the points and about half that level's cost; the coarser levels "
-                              "keep all their points)", 1, 8)
+                              "(2: a checkerboard, half the points and about half that level's cost; the next coarser "
+                              "level: coarse_point_stride, the others keep all their points)", 1, 8)
+    coarse_point_stride: int = param(1, "the same thinning on the level above the finest tracking level (2: a "
+                                     "checkerboard); that level only brings the pose into the finest level's basin",
+                                     1, 8)
     border_px: float = param(1.0, "a warped point is used only this far (px) inside the image border", 0.0, 20.0)
     min_warp_depth: float = param(1e-3, "skip points whose warped depth is at or below this (map units)", 0.0, 10.0)
     min_points: int = param(10, "a level with fewer usable points than this is skipped (finest: lost)", 6, 100000)

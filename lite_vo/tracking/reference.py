@@ -84,7 +84,7 @@ class TrackingReference:
     @classmethod
     def build(cls, image_pyr, idepth, idepth_var, valid, intrinsics0: PinholeIntrinsics,
               frame_id=0, smooth_sigma: float | None = None, min_level: int = 0,
-              point_stride: int = 1) -> "TrackingReference":
+              point_stride: int = 1, coarse_point_stride: int = 1) -> "TrackingReference":
         """Build from the reference image pyramid and its level-0 inverse-depth map.
 
         ``image_pyr``: list of float32 images (level 0 = mapping resolution, as from
@@ -98,6 +98,8 @@ class TrackingReference:
         profile never tracks on level 0, and skipping it halves the build time).
         ``point_stride``: on level ``min_level`` keep only the pixels with ``(x + y) % point_stride == 0``
         (2: a checkerboard; thin edges keep every other pixel in any direction).
+        ``coarse_point_stride``: the same on level ``min_level + 1`` (that level only has to bring the pose
+        into the finest level's basin).
         """
         if smooth_sigma is None:
             smooth_sigma = TrackingConfig().smooth_sigma
@@ -118,9 +120,10 @@ class TrackingReference:
                 raise ValueError(f"image level {lvl} has shape {img.shape}, expected {ms[lvl].shape}")
             intr = intrinsics0.level(lvl)
             mask = ms[lvl]
-            if lvl == min_level and point_stride > 1:
+            stride = point_stride if lvl == min_level else coarse_point_stride if lvl == min_level + 1 else 1
+            if stride > 1:
                 yy, xx = np.indices(mask.shape)
-                mask = mask & ((xx + yy) % point_stride == 0)
+                mask = mask & ((xx + yy) % stride == 0)
             n = int(np.count_nonzero(mask)) if lvl >= min_level else 0
             pts = np.empty((n, PTS_COLS), np.float32)
             xs = np.empty(n, np.float32)
