@@ -155,3 +155,9 @@ def test_map_sink_streams_the_same_cloud(tmp_path):
     got = read_ply(tmp_path / "map.ply")
     assert sink.points == len(whole.points) == len(got["x"]) > 0
     assert np.array_equal(np.stack([got["x"], got["y"], got["z"]], 1), whole.points)
+
+
+def test_a_variance_map_of_another_shape_is_refused():
+    image, d, var, color = _inputs(5)
+    with pytest.raises(ValueError, match="idepth_var"):
+        Keyframe.make(5, 0.2, np.eye(4), CAM, image, d, var[:-1], color)

@@ -468,8 +468,9 @@ def depth_accuracy(idepth: np.ndarray, valid: np.ndarray, depth_gt_m: np.ndarray
     if not np.any(m):
         return {"density": density, "median_abs_rel_error": float("nan"),
                 "within_5pct": 0.0, "within_10pct": 0.0, "compared": 0}
-    g = gt[m].astype(np.float64)
-    rel = np.abs(1.0 / idepth[m].astype(np.float64) - g) / g
+    flat = np.flatnonzero(m)                  # gathers the values of gt[m], idepth[m] (same order) faster
+    g = gt.reshape(-1).take(flat).astype(np.float64)
+    rel = np.abs(1.0 / idepth.reshape(-1).take(flat).astype(np.float64) - g) / g
     return {"density": density, "median_abs_rel_error": float(np.median(rel)),
             "within_5pct": float(np.mean(rel <= 0.05)), "within_10pct": float(np.mean(rel <= 0.10)),
-            "compared": int(m.sum())}
+            "compared": int(flat.size)}
