@@ -85,7 +85,8 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         ref = TrackingReference.build(pyr, idepth, np.full_like(idepth, 1e-4), valid, intr, k,
                                       smooth_sigma=cfg.tracking.smooth_sigma,
-                                      min_level=r.track_level)
+                                      min_level=r.track_level, point_stride=cfg.tracking.point_stride,
+                                      coarse_point_stride=cfg.tracking.coarse_point_stride)
         build_ms.append((time.perf_counter() - t0) * 1e3)
         pyrs.append(pyr)
         refs.append(ref)
@@ -121,6 +122,7 @@ def main(argv=None) -> int:
         "level_ms": {str(l): timing_stats(v) for l, v in sorted(per_level.items(), reverse=True)},
         "iterations": {str(l): timing_stats(v) for l, v in sorted(iters.items(), reverse=True)},
         "points": {str(l): v for l, v in sorted(points.items(), reverse=True)},
+        "point_stride": cfg.tracking.point_stride, "coarse_point_stride": cfg.tracking.coarse_point_stride,
         "reference_build_ms": timing_stats(build_ms), "image_pyramid_ms": timing_stats(pyr_ms),
         "load_average": os.getloadavg()[0],
     }
@@ -142,8 +144,9 @@ def render_md(res: dict, cmdline: str) -> str:
         f"`NUMBA_NUM_THREADS=1 python tools/bench_tracking.py {cmdline}`".replace(" `", "`"), "",
         f"Sequence `{res['sequence']}`, profile `{res['profile']}`: mapping {res['map_resolution'][0]}x"
         f"{res['map_resolution'][1]}, tracking level {res['track_level']} = {tw}x{th}; frame-to-frame "
-        f"against the previous frame's depth image (pixels with gradient >= 5 away from depth edges), identity "
-        f"initial guess; "
+        f"against the previous frame's depth image (pixels with gradient >= 5 away from depth edges; the "
+        f"profile's `tracking.point_stride` {res['point_stride']} on the finest level, `coarse_point_stride` "
+        f"{res['coarse_point_stride']} on the next), identity initial guess; "
         f"{res['frames_tracked_per_pass']} frames x {res['passes']} timed passes after a warm-up pass, one core "
         f"(numba threads: {res['numba_threads']}); machine load average at the end: {res['load_average']:.2f} "
         f"(shared 2-core machine: numbers are noisy, medians are the robust ones). Lost frames: {res['lost']}.", "",
