@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import collections
 import logging
+from concurrent.futures import ThreadPoolExecutor
 import threading
 import time
 from dataclasses import dataclass, field
@@ -156,6 +157,25 @@ class _Frame:
         return self._depth_m
 
 
+def _evaluate_depth(frame: _Frame, idepth: np.ndarray, valid: np.ndarray, monocular: bool, t: float) -> dict | None:
+    """One row of the depth evaluation (run on the evaluation worker): the map of ``frame`` against its
+    depth image; a monocular map is first scaled by the median ratio. None when the image cannot be read."""
+    try:
+        gt = frame.depth_m
+    except InputError as err:     # a deferred depth image that cannot be read: evaluation only
+        log.warning("depth evaluation skips frame %d: %s", frame.index, err)
+        return None
+    scale = 1.0
+    if monocular:
+        # arbitrary scale: align it per frame (median ratio) before comparing
+        both = valid & (gt > 0) & (idepth > 0)
+        if both.any():
+            scale = float(np.median(gt[both] * idepth[both]))
+            idepth = idepth / scale
+    acc = depth_accuracy(idepth, valid, gt)
+    return {"frame": frame.index, "t": t, "scale": scale, **acc}
+
+
 class VisualOdometry:
     """Semi-dense monocular visual odometry: ``process(image, timestamp) -> FrameResult``.
 
@@ -227,7 +247,10 @@ class VisualOdometry:
         self._verifier = None  # tracking thread only: InitVerifier after a random initialisation
         # one row (dict) per mapped frame with a depth image, stored as numbers (long runs stay small)
         self._depth_eval_count = 0       # mapped frames offered to the depth evaluation
-        self.depth_accuracy_series = RowRecord(DEPTH_ACCURACY_FIELDS, ints=("frame", "compared"))
+        self._depth_series = RowRecord(DEPTH_ACCURACY_FIELDS, ints=("frame", "compared"))
+        self._depth_eval: ThreadPoolExecutor | None = None      # evaluates off the tracking thread
+        self._depth_jobs: collections.deque = collections.deque()  # its results, in submission order
+        self._depth_lock = threading.Lock()
         # shared
         self._ref_lock = threading.Lock()
         self._reference: _Reference | None = None
@@ -308,14 +331,40 @@ class VisualOdometry:
         """The whole-scene point cloud of the keyframes (see :func:`lite_vo.keyframes.scene_cloud`)."""
         return scene_cloud(self.keyframes, **kw)
 
+    @property
+    def depth_accuracy_series(self) -> RowRecord:
+        """Rows of the sampled depth evaluation against the sequence's depth images (fields
+        ``DEPTH_ACCURACY_FIELDS``), complete up to the last processed frame (waits for the evaluations
+        still running in the background)."""
+        self._drain_depth_jobs(wait=True)
+        return self._depth_series
+
+    def _drain_depth_jobs(self, wait: bool) -> None:
+        """Append the finished evaluations (all of them with ``wait``) in the order they were made (the
+        mapping thread submits in realtime mode, any thread may read: one lock)."""
+        with self._depth_lock:
+            jobs = self._depth_jobs
+            while jobs and (wait or jobs[0].done()):
+                row = jobs[0].result()
+                jobs.popleft()
+                if row is not None:
+                    self._depth_series.append(row)
+
     def close(self) -> None:
-        """Stop the mapping thread (realtime mode) after it finished the pending frame."""
+        """Stop the mapping thread (realtime mode) after it finished the pending frame, and finish the
+        depth evaluations still running."""
         if self._thread is not None:
             with self._cond:
                 self._stop = True
                 self._cond.notify_all()
             self._thread.join()
             self._thread = None
+        try:
+            self._drain_depth_jobs(wait=True)
+        finally:
+            if self._depth_eval is not None:
+                self._depth_eval.shutdown(wait=True)
+                self._depth_eval = None
         if self._map_error is not None:
             raise LiteVOError(f"mapping thread failed: {self._map_error}") from self._map_error
 
@@ -783,21 +832,14 @@ class VisualOdometry:
         self._depth_eval_count += 1
         if (self._depth_eval_count - 1) % every:
             return
-        try:
-            gt = frame.depth_m
-        except InputError as err:     # a deferred depth image that cannot be read: evaluation only
-            log.warning("depth evaluation skips frame %d: %s", frame.index, err)
-            return
         if idepth is None:
-            idepth, _, valid = self._mapper.current()
-        scale = 1.0
-        if not (self.metric or self.pose_source == "given"):
-            # monocular map: arbitrary scale, align it per frame (median ratio) before comparing
-            both = valid & (gt > 0) & (idepth > 0)
-            if both.any():
-                scale = float(np.median(gt[both] * idepth[both]))
-                idepth = idepth / scale
-        acc = depth_accuracy(idepth, valid, gt)
-        acc = {"frame": frame.index, "t": frame.timestamp - self._t0, "scale": scale, **acc}
-        self.depth_accuracy_series.append(acc)
+            idepth, _, valid = self._mapper.current()      # fresh arrays: nobody writes them afterwards
+        # decoding the depth image (a 16-bit PNG: about 3 ms at 640x480) and comparing run on a worker
+        # thread: nothing the VO does depends on the result, and one worker keeps the rows in order
+        if self._depth_eval is None:
+            self._depth_eval = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lite_vo-depth-eval")
+        monocular = not (self.metric or self.pose_source == "given")
+        self._depth_jobs.append(self._depth_eval.submit(_evaluate_depth, frame, idepth, valid, monocular,
+                                                        frame.timestamp - self._t0))
+        self._drain_depth_jobs(wait=False)
 

@@ -200,3 +200,45 @@ def test_plain_intrinsics_of_undistorted_input_work_like_the_camera(synth_small)
             poses.append([vo.process(f.image, f.timestamp, depth=f.depth).T_world_cam for f in frames])
     assert vo.map_intrinsics.width == 320
     np.testing.assert_array_equal(np.asarray(poses[0]), np.asarray(poses[1]))
+
+
+def test_depth_evaluation_runs_off_the_tracking_thread_and_keeps_its_rows(synth_small, monkeypatch):
+    """The sampled depth evaluation runs on a worker thread: process() does not wait for it, the series
+    waits for every pending row when read, in frame order, with the same values as computed inline."""
+    import threading
+    from lite_vo import system as S
+    seq, frames = _frames(synth_small, 40)
+    cfg = lite_vo.load_profile("phone", ['system.init="random"', "system.depth_eval_every=1"])
+
+    def run(evaluate_depth):
+        monkeypatch.setattr(S, "_evaluate_depth", evaluate_depth)
+        vo = VisualOdometry(seq.camera, cfg)
+        for fr in frames:
+            vo.process(fr.image, fr.timestamp, depth=fr.depth)
+        rows = [dict(r) for r in vo.depth_accuracy_series]
+        vo.close()
+        return rows
+
+    real = S._evaluate_depth
+    threads, gate = set(), threading.Event()
+
+    def slow(*args):
+        threads.add(threading.current_thread().name)
+        gate.wait(5.0)                         # held until every frame was processed
+        return real(*args)
+
+    inline = run(real)
+    vo_thread = threading.current_thread().name
+    monkeypatch.setattr(S, "_evaluate_depth", slow)
+    vo = VisualOdometry(seq.camera, cfg)
+    for fr in frames:
+        vo.process(fr.image, fr.timestamp, depth=fr.depth)
+    assert len(vo._depth_jobs) > 1            # queued, not evaluated while tracking
+    gate.set()
+    rows = [dict(r) for r in vo.depth_accuracy_series]
+    vo.close()
+    assert threads and vo_thread not in threads
+    assert len(rows) == len(inline) > 3
+    assert [r["frame"] for r in rows] == sorted(r["frame"] for r in rows)
+    for a, b in zip(rows, inline):
+        assert a.keys() == b.keys() and all(a[k] == b[k] or (a[k] != a[k] and b[k] != b[k]) for k in a)
