@@ -169,3 +169,18 @@ def test_no_private_names_across_packages(module):
         if private_module or private_name:
             bad.append(f"line {line}: {target}{'.' + name if name else ''}")
     assert bad == [], f"{module} imports private names of another package: {bad}"
+
+
+def test_importing_lite_vo_shortens_openmps_spin_unless_the_user_set_it():
+    """GOMP_SPINCOUNT defaults to a short spin (idle OpenMP threads burned CPU the reader needs); a value
+    the user set is kept."""
+    import os
+    import subprocess
+    import sys
+    code = "import os, lite_vo; print(os.environ.get('GOMP_SPINCOUNT'))"
+    env = {k: v for k, v in os.environ.items() if k != "GOMP_SPINCOUNT"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "30000"
+    env["GOMP_SPINCOUNT"] = "INFINITY"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "INFINITY"
