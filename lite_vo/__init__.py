@@ -17,10 +17,11 @@ import os
 __version__ = "0.1.0"
 
 # numba's parallel kernels run on GNU OpenMP (Linux), whose idle worker threads keep spinning for a
-# while after every parallel region: on ICL that burned about 2 ms of CPU per frame (10.0 -> 8.3 ms with
-# a shorter spin) that the frame reader, the depth evaluation and everything else on the machine
-# could use (whole program 5.2-5.6 -> 4.9-5.2 ms per frame in interleaved runs). A shorter spin unless
-# the user set one; it has to be in the environment before the first parallel kernel starts OpenMP.
+# while after every parallel region: on ICL (`phone`, sync) that burned about 2 ms of CPU per frame that
+# the frame reader, the depth evaluation and everything else on the machine could use (CPU 9.6 -> 7.7 ms,
+# wall 5.2 -> 4.8 ms per frame, medians of six interleaved runs against GNU's default of 300000). A
+# shorter spin unless the user set one; it has to be in the environment before OpenMP starts (the
+# first parallel kernel).
 os.environ.setdefault("GOMP_SPINCOUNT", "30000")
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -33,9 +33,9 @@ from __future__ import annotations
 
 import collections
 import logging
-from concurrent.futures import ThreadPoolExecutor
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -836,10 +836,11 @@ class VisualOdometry:
             idepth, _, valid = self._mapper.current()      # fresh arrays: nobody writes them afterwards
         # decoding the depth image (a 16-bit PNG: about 3 ms at 640x480) and comparing run on a worker
         # thread: nothing the VO does depends on the result, and one worker keeps the rows in order
-        if self._depth_eval is None:
-            self._depth_eval = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lite_vo-depth-eval")
         monocular = not (self.metric or self.pose_source == "given")
-        self._depth_jobs.append(self._depth_eval.submit(_evaluate_depth, frame, idepth, valid, monocular,
-                                                        frame.timestamp - self._t0))
+        with self._depth_lock:       # realtime mode: the tracking thread (initialisation) and the mapping thread
+            if self._depth_eval is None:
+                self._depth_eval = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lite_vo-depth-eval")
+            self._depth_jobs.append(self._depth_eval.submit(_evaluate_depth, frame, idepth, valid, monocular,
+                                                            frame.timestamp - self._t0))
         self._drain_depth_jobs(wait=False)
 
