@@ -192,16 +192,22 @@ def test_reference_build_levels_and_immutability():
         TrackingReference.build(pyr, idepth[:100], var, valid, INTR)
 
 
-@pytest.mark.parametrize("stride", [2, 3])
-def test_reference_point_stride_thins_only_the_finest_tracked_level(stride):
-    """``point_stride`` keeps the finest tracked level's points on the lattice (x + y) % stride == 0, the
-    same points with the same values as without it; coarser levels keep all their points."""
-    rng = np.random.default_rng(9)
+def _random_map(seed):
+    """(image pyramid, idepth, var, valid) of a random 320x240 image with a random 30 % of valid depths."""
+    rng = np.random.default_rng(seed)
     img = rng.uniform(0, 255, (240, 320)).astype(np.float32)
     idepth = rng.uniform(0.3, 1.0, (240, 320)).astype(np.float32)
     var = np.full((240, 320), 1e-3, np.float32)
     valid = rng.uniform(size=(240, 320)) < 0.3
     pyr = image_pyramid(img, LEVELS)
+    return pyr, idepth, var, valid
+
+
+@pytest.mark.parametrize("stride", [2, 3])
+def test_reference_point_stride_thins_only_the_finest_tracked_level(stride):
+    """``point_stride`` keeps the finest tracked level's points on the lattice (x + y) % stride == 0, the
+    same points with the same values as without it; coarser levels keep all their points."""
+    pyr, idepth, var, valid = _random_map(9)
     full = TrackingReference.build(pyr, idepth, var, valid, INTR, min_level=1)
     thin = TrackingReference.build(pyr, idepth, var, valid, INTR, min_level=1, point_stride=stride)
     a, b = full.levels[1], thin.levels[1]
@@ -217,12 +223,7 @@ def test_reference_point_stride_thins_only_the_finest_tracked_level(stride):
 def test_reference_coarse_point_stride_thins_only_the_next_coarser_level():
     """``coarse_point_stride`` does to the level above the finest tracked one what ``point_stride`` does
     to the finest: the same points with the same values on the lattice, the other levels untouched."""
-    rng = np.random.default_rng(10)
-    img = rng.uniform(0, 255, (240, 320)).astype(np.float32)
-    idepth = rng.uniform(0.3, 1.0, (240, 320)).astype(np.float32)
-    var = np.full((240, 320), 1e-3, np.float32)
-    valid = rng.uniform(size=(240, 320)) < 0.3
-    pyr = image_pyramid(img, LEVELS)
+    pyr, idepth, var, valid = _random_map(10)
     full = TrackingReference.build(pyr, idepth, var, valid, INTR, min_level=1, point_stride=3)
     thin = TrackingReference.build(pyr, idepth, var, valid, INTR, min_level=1, point_stride=3, coarse_point_stride=2)
     a, b = full.levels[2], thin.levels[2]
