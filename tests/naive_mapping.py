@@ -290,6 +290,7 @@ def propagate(st, img_old, img_new, maxgrad_new, R, t, fx, fy, cx, cy, border, m
     out = {k: np.zeros((h, w), st[k].dtype) for k in ("idepth", "idepth_var", "idepth_s", "var_s", "valid",
                                                       "validity", "pos_x", "pos_y", "ref_id", "skip")}
     out["blacklist"] = st["blacklist"].copy()      # stays with the pixel, reset where a hypothesis lands
+    out["pos_y"][:], out["pos_x"][:] = np.mgrid[0:h, 0:w]   # empty pixels keep their grid position
     counts = dict(kept=0, border=0, intensity=0, occluded=0, fused=0)
     for y in range(h):
         for x in range(w):

@@ -278,12 +278,17 @@ def _prop_args(cfg):
 
 def _run_propagate(st, img_old, img_new, mg_new, T_new_old, Kc, cfg, aff=(1.0, 0.0)):
     h, w = img_old.shape
-    out = {k: np.zeros((h, w), st[k].dtype) for k in ("idepth", "idepth_var", "idepth_s", "var_s", "valid",
-                                                      "validity", "pos_x", "pos_y", "ref_id", "skip")}
-    out["blacklist"] = st["blacklist"].copy()
+    # the new map starts as garbage (the Mapper hands in the map of two frames ago): the kernel resets
+    # valid, positions and blacklist itself; the rest only matters where a hypothesis lands
+    garbage = np.random.default_rng(11)
+    out = {k: (garbage.random((h, w)) * 9).astype(st[k].dtype) for k in (
+        "idepth", "idepth_var", "idepth_s", "var_s", "valid", "validity", "pos_x", "pos_y", "ref_id", "skip",
+        "blacklist")}
     R, t = np.ascontiguousarray(T_new_old[:3, :3]), np.ascontiguousarray(T_new_old[:3, 3])
     res = kernels.propagate_kernel(_ms(st), img_old, img_new, mg_new, R, t, _cam(Kc), mapping_params(cfg),
                                    np.array(aff, np.float64), _ms(out), kernels.propagation_work(h, w))
+    for k in ("idepth", "idepth_var", "idepth_s", "var_s", "validity", "ref_id", "skip"):
+        out[k][out["valid"] == 0] = 0             # left as they were: not part of the result
     return out, res
 
 
@@ -403,7 +408,8 @@ def test_regularize_matches_naive(var_mode):
     bl = st["blacklist"].copy()
     cfg = MappingConfig(reg_radius=2, reg_dist_var=0.005625, reg_diff_fac=1.0, reg_validity_sum=24.0,
                         reg_var_mode=("min", "own", "fused")[var_mode])
-    kernels.regularize_kernel(_ms({**st, "blacklist": bl, "idepth_s": a_d, "var_s": a_v}), mapping_params(cfg), a_valid)
+    kernels.regularize_kernel(_ms({**st, "blacklist": bl, "idepth_s": a_d, "var_s": a_v}), mapping_params(cfg), a_valid,
+                              kernels.regularize_work(25, 31, 2))
     n_d, n_v, n_valid, n_bl = naive.regularize(st["idepth"], st["idepth_var"], st["valid"], st["validity"],
                                                st["blacklist"], 2, 0.005625, 1.0, 24.0, var_mode)
     np.testing.assert_array_equal(a_valid, n_valid)
@@ -426,7 +432,8 @@ def test_regularize_preserves_edges():
     st = _random_state(np.random.default_rng(0), h, w)
     st.update(idepth=d, idepth_var=var, valid=valid, validity=np.full((h, w), 20.0, np.float32),
               blacklist=np.zeros((h, w), np.int32), idepth_s=o_d, var_s=o_v)
-    kernels.regularize_kernel(_ms(st), mapping_params(MappingConfig(reg_var_mode="min")), o_valid)
+    kernels.regularize_kernel(_ms(st), mapping_params(MappingConfig(reg_var_mode="min")), o_valid,
+                              kernels.regularize_work(h, w, MappingConfig().reg_radius))
     np.testing.assert_allclose(o_d, d, rtol=1e-6)
     assert o_valid.all()
 
@@ -442,7 +449,10 @@ def test_fill_matches_naive():
     skip = st["skip"].copy()
     cfg = MappingConfig(min_grad=5.0, min_blacklist=-1, fill_validity_sum=30.0, unblacklist_validity_sum=100.0,
                         init_var=0.125, fill_validity=0.0)
-    kernels.fill_kernel(_ms({**o, "blacklist": bl, "skip": skip}), mg, mapping_params(cfg), flag)
+    work = kernels.fill_work(26, 33)
+    for a in work:
+        a.fill(7)                                 # scratch from an earlier call: overwritten, never read
+    kernels.fill_kernel(_ms({**o, "blacklist": bl, "skip": skip}), mg, mapping_params(cfg), flag, work)
     created = naive.fill(st["idepth"], st["idepth_var"], st["valid"], st["validity"], st["ref_id"], st["blacklist"],
                          mg, 5.0, -1, 30.0, 100.0, 0.125, 0.0)
     assert {tuple(p) for p in np.argwhere(flag)} == set(created)

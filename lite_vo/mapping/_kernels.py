@@ -88,8 +88,15 @@ MapState = namedtuple("MapState", ["idepth", "idepth_var", "idepth_s", "var_s", 
 #: current camera, ``residual`` (n,) tracking residual of each reference, ``affine`` (n, 2) the
 #: brightness transfer ``(a, b)`` of each reference into the current frame: ``I_cur ~ a I_ref + b``
 #: scratch of :func:`propagate_kernel` (HxW each): where each hypothesis lands (flat index or a
-#: negative drop code), its new inverse depth and variance, its sub-pixel position in the new frame
-PropagationWork = namedtuple("PropagationWork", ["target", "idepth", "var", "u", "v"])
+#: negative drop code), its new inverse depth and variance, its sub-pixel position in the new frame;
+#: (H,) each: the smallest and largest target row of each source row's hypotheses
+PropagationWork = namedtuple("PropagationWork", ["target", "idepth", "var", "u", "v", "row_lo", "row_hi"])
+#: scratch of :func:`fill_kernel` (HxW each): horizontal 5-sums of validity, idepth/var and 1/var
+#: (float64) and the 5-minimum of ref_id (int64)
+FillWork = namedtuple("FillWork", ["validity", "idepth", "inv_var", "ref_id"])
+#: scratch of :func:`regularize_kernel` ((H+2r)x(W+2r) float32 each): the map padded by the radius r:
+#: inverse depth (NaN without a hypothesis), variance, validity
+RegularizeWork = namedtuple("RegularizeWork", ["idepth", "var", "validity"])
 RefFrames = namedtuple("RefFrames", ["images", "slots", "ids", "R", "t", "c", "residual", "affine"])
 
 # return codes of line_stereo
@@ -115,6 +122,9 @@ def _bilinear(img, x, y):
 
 #: rows per block of the parallel stereo pass's row order (:func:`interleaved_rows`)
 ROW_BLOCK = 8
+#: bands of target rows in the parallel collision pass of :func:`propagate_kernel` (a multiple of the
+#: usual thread counts; the result does not depend on it)
+PROPAGATE_BANDS = 12
 
 
 @njit(cache=True, nogil=True)
@@ -587,17 +597,22 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
     ``aff = (a, b)``: brightness transfer of the old frame into the new one (the intensity check
     compares ``I_new`` with ``a * I_old + b``).
 
-    Two passes: the warp and the per-hypothesis checks run in parallel over rows (each source pixel
-    writes only its own entry of the work arrays); the collisions are then resolved serially in
-    raster order, so the result does not depend on the number of threads. ``work``: the
-    :class:`PropagationWork` arrays of the map's size (scratch, allocated once by the caller).
+    Two passes, both parallel, and the result does not depend on the number of threads:
 
-    ``new.valid`` must be all 0 on entry; the other arrays of ``new`` are only written where a
-    hypothesis lands (``blacklist`` is reset to 0 there). Returns (kept, dropped_border,
-    dropped_intensity, occluded, fused).
+    1. over source rows: resets ``new`` (no hypothesis, positions on the pixel grid, ``blacklist``
+       copied from ``old``: it stays with the pixel location), warps each hypothesis and runs its
+       checks (each source pixel writes only its own entry of the work arrays);
+    2. over bands of TARGET rows: a band visits, in raster order, the source rows whose hypotheses
+       land in it (pass 1 records each source row's range of target rows) and resolves the
+       collisions on its own target pixels. Every target pixel sees its sources in raster order,
+       as one serial loop over the image would.
+
+    ``new``'s arrays are only written where a hypothesis lands (after the reset); ``work``: the
+    :class:`PropagationWork` scratch of the map's size (allocated once by the caller). Returns
+    (kept, dropped_border, dropped_intensity, occluded, fused).
     """
     idepth_s, idepth_var, valid, validity = old.idepth_s, old.idepth_var, old.valid, old.validity
-    pos_x, pos_y, ref_id, skip = old.pos_x, old.pos_y, old.ref_id, old.skip
+    pos_x, pos_y, ref_id, skip, blacklist = old.pos_x, old.pos_y, old.ref_id, old.skip, old.blacklist
     (o_idepth, o_var, o_idepth_s, o_var_s, o_valid, o_validity, o_pos_x, o_pos_y, o_ref_id, o_blacklist,
      o_skip) = new
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
@@ -613,15 +628,24 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
     keep_clipped = prm[P_KEEP_CLIPPED] > 0.5
     h, w = idepth_s.shape
     # pass 1: where each hypothesis lands (target >= 0: flat index; -1 border, -2 intensity, -3 none)
-    target, w_d, w_var, w_u, w_v = work
+    target, w_d, w_var, w_u, w_v, row_lo, row_hi = work
+    n_border = 0
+    n_int = 0
     for y in prange(h):
+        lo_y = h
+        hi_y = -1
         for x in range(w):
+            o_valid[y, x] = 0
+            o_pos_x[y, x] = x
+            o_pos_y[y, x] = y
+            o_blacklist[y, x] = blacklist[y, x]
             target[y, x] = -3
             if valid[y, x] == 0:
                 continue
             target[y, x] = -1
             d = np.float64(idepth_s[y, x])
             if not (d > 0.0):
+                n_border += 1
                 continue
             px = np.float64(pos_x[y, x])
             py = np.float64(pos_y[y, x])
@@ -631,12 +655,14 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             qy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) / d + t[1]
             qz = (R[2, 0] * rx + R[2, 1] * ry + R[2, 2]) / d + t[2]
             if not (qz > 0.0):
+                n_border += 1
                 continue
             d_new = 1.0 / qz
             u = fx * qx * d_new + cx
             v = fy * qy * d_new + cy
             if not (u >= border and v >= border and u <= w - 1 - border and v <= h - 1 - border
                     and u < w - 1 and v < h - 1 and u >= 0.0 and v >= 0.0):
+                n_border += 1
                 continue
             target[y, x] = -2
             ix = int(u + 0.5)
@@ -647,6 +673,7 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             dst = _bilinear(img_new, u, v) if (g >= min_grad or keep_clipped) else 0.0
             flat_clipped = keep_clipped and g < min_grad and dst >= sat
             if g < min_grad and not flat_clipped:
+                n_int += 1
                 continue
             if px >= 0.0 and py >= 0.0 and px < w - 1 and py < h - 1:
                 src = _bilinear(img_old, px, py)
@@ -655,6 +682,7 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             r = dst - (aff[0] * src + aff[1])
             clipped = (sat_check or flat_clipped) and (src >= sat or dst >= sat)  # not comparable
             if not clipped and r * r / (diff_const2 + diff_grad_mult * g * g) > 1.0:
+                n_int += 1
                 continue
             ratio = d_new / d
             ratio *= ratio
@@ -663,63 +691,82 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             w_var[y, x] = ratio * ratio * idepth_var[y, x] + var_add
             w_u[y, x] = u
             w_v[y, x] = v
-    # pass 2: collisions, serially in raster order
+            if iy < lo_y:
+                lo_y = iy
+            if iy > hi_y:
+                hi_y = iy
+        row_lo[y] = lo_y
+        row_hi[y] = hi_y
+    # pass 2: collisions, per band of target rows; each band's sources in raster order
+    nb = min(PROPAGATE_BANDS, h)
+    band_counts = np.zeros((nb, 3), np.int64)        # kept, occluded, fused
+    for b in prange(nb):
+        b_lo = (b * h) // nb
+        b_hi = ((b + 1) * h) // nb                    # target rows b_lo .. b_hi - 1
+        kept = 0
+        n_occ = 0
+        n_fused = 0
+        for y in range(h):
+            if row_hi[y] < b_lo or row_lo[y] >= b_hi:
+                continue
+            for x in range(w):
+                tg = target[y, x]
+                if tg < 0:
+                    continue
+                iy = tg // w
+                if iy < b_lo or iy >= b_hi:
+                    continue
+                ix = tg - iy * w
+                d_new = w_d[y, x]
+                new_var = w_var[y, x]
+                if o_valid[iy, ix] != 0:
+                    other = np.float64(o_idepth[iy, ix])
+                    diff = other - d_new
+                    if merge_fac * diff * diff > new_var + o_var[iy, ix]:
+                        n_occ += 1
+                        if d_new < other:
+                            continue          # the new one is farther: occluded
+                        o_valid[iy, ix] = 0   # the new one is nearer: replaces
+                if o_valid[iy, ix] == 0:
+                    o_idepth[iy, ix] = d_new
+                    o_var[iy, ix] = new_var
+                    o_validity[iy, ix] = validity[y, x]
+                    o_pos_x[iy, ix] = w_u[y, x]
+                    o_pos_y[iy, ix] = w_v[y, x]
+                    o_ref_id[iy, ix] = ref_id[y, x]
+                    o_skip[iy, ix] = skip[y, x]
+                    o_valid[iy, ix] = 1
+                    kept += 1
+                else:
+                    ov = np.float64(o_var[iy, ix])
+                    wgt = new_var / (ov + new_var)
+                    o_idepth[iy, ix] = wgt * o_idepth[iy, ix] + (1.0 - wgt) * d_new
+                    o_var[iy, ix] = 1.0 / (1.0 / ov + 1.0 / new_var)
+                    mv = o_validity[iy, ix] + validity[y, x]
+                    o_validity[iy, ix] = mv if mv < validity_cap else validity_cap
+                    if ref_id[y, x] < o_ref_id[iy, ix]:
+                        o_ref_id[iy, ix] = ref_id[y, x]
+                    if skip[y, x] < o_skip[iy, ix]:
+                        o_skip[iy, ix] = skip[y, x]
+                    n_fused += 1
+                o_idepth_s[iy, ix] = o_idepth[iy, ix]
+                o_var_s[iy, ix] = o_var[iy, ix]
+                o_blacklist[iy, ix] = 0
+        band_counts[b, 0] = kept
+        band_counts[b, 1] = n_occ
+        band_counts[b, 2] = n_fused
     kept = 0
-    n_border = 0
-    n_int = 0
     n_occ = 0
     n_fused = 0
-    for y in range(h):
-        for x in range(w):
-            tg = target[y, x]
-            if tg < 0:
-                if tg == -1:
-                    n_border += 1
-                elif tg == -2:
-                    n_int += 1
-                continue
-            iy = tg // w
-            ix = tg - iy * w
-            d_new = w_d[y, x]
-            new_var = w_var[y, x]
-            if o_valid[iy, ix] != 0:
-                other = np.float64(o_idepth[iy, ix])
-                diff = other - d_new
-                if merge_fac * diff * diff > new_var + o_var[iy, ix]:
-                    n_occ += 1
-                    if d_new < other:
-                        continue          # the new one is farther: occluded
-                    o_valid[iy, ix] = 0   # the new one is nearer: replaces
-            if o_valid[iy, ix] == 0:
-                o_idepth[iy, ix] = d_new
-                o_var[iy, ix] = new_var
-                o_validity[iy, ix] = validity[y, x]
-                o_pos_x[iy, ix] = w_u[y, x]
-                o_pos_y[iy, ix] = w_v[y, x]
-                o_ref_id[iy, ix] = ref_id[y, x]
-                o_skip[iy, ix] = skip[y, x]
-                o_valid[iy, ix] = 1
-                kept += 1
-            else:
-                ov = np.float64(o_var[iy, ix])
-                wgt = new_var / (ov + new_var)
-                o_idepth[iy, ix] = wgt * o_idepth[iy, ix] + (1.0 - wgt) * d_new
-                o_var[iy, ix] = 1.0 / (1.0 / ov + 1.0 / new_var)
-                mv = o_validity[iy, ix] + validity[y, x]
-                o_validity[iy, ix] = mv if mv < validity_cap else validity_cap
-                if ref_id[y, x] < o_ref_id[iy, ix]:
-                    o_ref_id[iy, ix] = ref_id[y, x]
-                if skip[y, x] < o_skip[iy, ix]:
-                    o_skip[iy, ix] = skip[y, x]
-                n_fused += 1
-            o_idepth_s[iy, ix] = o_idepth[iy, ix]
-            o_var_s[iy, ix] = o_var[iy, ix]
-            o_blacklist[iy, ix] = 0
+    for b in range(nb):
+        kept += band_counts[b, 0]
+        n_occ += band_counts[b, 1]
+        n_fused += band_counts[b, 2]
     return kept, n_border, n_int, n_occ, n_fused
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
-def regularize_kernel(st, prm, o_valid):
+def regularize_kernel(st, prm, o_valid, work):
     """Inverse-variance weighted, edge-preserving smoothing of the valid hypotheses of ``st``
     (a :class:`MapState`): reads ``idepth, idepth_var, valid, validity``, writes ``idepth_s, var_s``
     (where ``o_valid``), ``blacklist`` and ``o_valid``.
@@ -734,7 +781,8 @@ def regularize_kernel(st, prm, o_valid):
     no hypothesis, so the compatibility test fails there without a branch), then every row is
     accumulated offset by offset over the whole row (SIMD). The sums are float64: float32 sums
     change the map by about 1e-6 relative, which is enough to move a degenerate run (a static
-    camera, random init) elsewhere.
+    camera, random init) elsewhere. ``work``: the :class:`RegularizeWork` planes (allocated once by the
+    caller for the map's size and radius; overwritten here).
     """
     idepth, idepth_var, valid, validity, blacklist = st.idepth, st.idepth_var, st.valid, st.validity, st.blacklist
     o_idepth_s, o_var_s = st.idepth_s, st.var_s
@@ -745,15 +793,21 @@ def regularize_kernel(st, prm, o_valid):
     var_mode = int(prm[P_REG_VAR_MODE])
     h, w = idepth.shape
     hp, wp = h + 2 * r, w + 2 * r
-    D = np.full((hp, wp), np.nan, np.float32)
-    V = np.zeros((hp, wp), np.float32)
-    L = np.zeros((hp, wp), np.float32)
-    for y in range(h):
-        for x in range(w):
-            if valid[y, x] != 0:
-                D[y + r, x + r] = idepth[y, x]
-                V[y + r, x + r] = idepth_var[y, x]
-                L[y + r, x + r] = validity[y, x]
+    D, V, L = work
+    if D.shape[0] != hp or D.shape[1] != wp:
+        raise ValueError("regularize_kernel: work planes of the wrong size (see regularize_work)")
+    for yp in prange(hp):
+        y = yp - r
+        for xp in range(wp):
+            x = xp - r
+            if y >= 0 and y < h and x >= 0 and x < w and valid[y, x] != 0:
+                D[yp, xp] = idepth[y, x]
+                V[yp, xp] = idepth_var[y, x]
+                L[yp, xp] = validity[y, x]
+            else:
+                D[yp, xp] = np.nan
+                V[yp, xp] = 0.0
+                L[yp, xp] = 0.0
     nd = 2 * r + 1
     inv_tab = np.empty(nd * nd, np.float64)
     for dy in range(nd):
@@ -804,7 +858,7 @@ def regularize_kernel(st, prm, o_valid):
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
-def fill_kernel(st, maxgrad, prm, new_flag):
+def fill_kernel(st, maxgrad, prm, new_flag, work):
     """Create hypotheses in empty pixels of ``st`` (a :class:`MapState`) with gradient >= min_grad
     whose 5x5 validity sum exceeds ``P_FILL_VALIDITY_SUM`` (``P_UNBLACKLIST_SUM`` for pixels with
     blacklist < ``P_MIN_BLACKLIST``), as the inverse-variance mean of the valid neighbours, with
@@ -814,7 +868,9 @@ def fill_kernel(st, maxgrad, prm, new_flag):
     read sees the map before filling. The caller then sets ``valid |= new_flag``.
 
     The 5x5 sums (validity, idepth/var, 1/var) and the 5x5 minimum of ``ref_id`` over the valid
-    pixels are separable: row sums first (vectorised), then column sums at the candidate pixels. Serial (about 0.3 ms at 320x240).
+    pixels are separable: row sums first (vectorised), then column sums at the candidate pixels. Serial (about 0.2 ms at 320x240).
+    ``work``: the :class:`FillWork` scratch of the map's size (allocated once by the caller: 2.4 MB at
+    320x240, which a fresh allocation per call would page in again and again).
     """
     idepth, idepth_var, idepth_s, var_s, valid, validity, pos_x, pos_y, ref_id, blacklist, skip = st
     min_grad = prm[P_MIN_GRAD]
@@ -829,10 +885,7 @@ def fill_kernel(st, maxgrad, prm, new_flag):
     big = np.iinfo(np.int64).max
     # horizontal 5-sums (validity, idepth/var, 1/var) and 5-min (ref_id) of the valid pixels
     # (only columns 2 .. w-3 are read below: the rest stays uninitialised)
-    hv = np.empty((h, w), np.float64)
-    hs = np.empty((h, w), np.float64)
-    hi = np.empty((h, w), np.float64)
-    hr = np.empty((h, w), np.int64)
+    hv, hs, hi, hr = work
     pv = np.empty(w, np.float64)
     ps = np.empty(w, np.float64)
     pi = np.empty(w, np.float64)
@@ -884,7 +937,34 @@ def fill_kernel(st, maxgrad, prm, new_flag):
 def propagation_work(h: int, w: int) -> PropagationWork:
     """Scratch arrays of :func:`propagate_kernel` for an HxW map."""
     return PropagationWork(np.empty((h, w), np.int64), np.empty((h, w), np.float64), np.empty((h, w), np.float64),
-                           np.empty((h, w), np.float64), np.empty((h, w), np.float64))
+                           np.empty((h, w), np.float64), np.empty((h, w), np.float64), np.empty(h, np.int64),
+                           np.empty(h, np.int64))
+
+
+@njit(cache=True, nogil=True)
+def count_codes(codes, n):
+    """How often each value 0 .. n-1 occurs in the 2-D int8 array ``codes`` (others are not counted):
+    ``np.bincount`` without converting the array to int64 first."""
+    out = np.zeros(n, np.int64)
+    h, w = codes.shape
+    for y in range(h):
+        for x in range(w):
+            c = codes[y, x]
+            if c >= 0 and c < n:
+                out[c] += 1
+    return out
+
+
+def fill_work(h: int, w: int) -> FillWork:
+    """Scratch of :func:`fill_kernel` for an HxW map."""
+    return FillWork(np.empty((h, w), np.float64), np.empty((h, w), np.float64), np.empty((h, w), np.float64),
+                    np.empty((h, w), np.int64))
+
+
+def regularize_work(h: int, w: int, radius: int) -> RegularizeWork:
+    """Scratch of :func:`regularize_kernel` for an HxW map and this radius."""
+    shape = (h + 2 * radius, w + 2 * radius)
+    return RegularizeWork(np.empty(shape, np.float32), np.empty(shape, np.float32), np.empty(shape, np.float32))
 
 
 def new_state(h: int, w: int) -> MapState:
@@ -934,8 +1014,9 @@ def warmup() -> None:
     new = new_state(h, w)
     propagate_kernel(st, img, img, mg, R, t, cam, prm, np.array([1.0, 0.0]), new, propagation_work(h, w))
     o_valid = np.zeros((h, w), np.uint8)
-    regularize_kernel(st, prm, o_valid)
-    fill_kernel(st, mg, prm, o_valid)
+    regularize_kernel(st, prm, o_valid, regularize_work(h, w, int(prm[P_REG_RADIUS])))
+    fill_kernel(st, mg, prm, o_valid, fill_work(h, w))
+    count_codes(status, 9)
     # the per-pixel helpers are inlined into observe_kernel; compile their standalone versions too
     epipolar_direction(img, 10, 10, 10.0, 10.0, -t, 30.0, 30.0, 15.5, 11.5, prm)
     line_length(10.0, 10.0, 0.0, 1.0, R, t, 30.0, 30.0, 15.5, 11.5)

@@ -25,7 +25,7 @@ from ..camera import PinholeIntrinsics
 from ..errors import InputError
 from ..photometric import affine_transfer
 from . import _kernels as kernels
-from ._kernels import MapState, RefFrames, new_state, propagation_work
+from ._kernels import MapState, RefFrames, fill_work, new_state, propagation_work, regularize_work
 from .config import MappingConfig
 
 
@@ -187,10 +187,12 @@ class Mapper:
         self.state: MapState = new_state(self.h, self.w)
         self._spare: MapState = new_state(self.h, self.w)
         self._prop_work = propagation_work(self.h, self.w)
-        self._grid_x = self.state.pos_x.copy()
-        self._grid_y = self.state.pos_y.copy()
+        self._fill_work = fill_work(self.h, self.w)
+        self._reg_work = regularize_work(self.h, self.w, int(config.reg_radius))
         self._cur: _Prepared | None = None
         self._buf_images = np.zeros((config.buffer_size, self.h, self.w), np.float32)
+        self._buf_T_ref_world = np.zeros((config.buffer_size, 4, 4))    # inverse pose of each slot's frame
+        self._status = np.zeros((self.h, self.w), np.int8)             # observe's per-pixel outcome (scratch)
         self._buffer: list[tuple[MapFrame, int]] = []   # (frame, slot), oldest first
         self._iteration = 0
         self._last_costs: dict | None = None
@@ -334,6 +336,7 @@ class Mapper:
             used = {s for _, s in self._buffer}
             slot = next(i for i in range(self.config.buffer_size) if i not in used)
         self._buf_images[slot] = prep.image
+        self._buf_T_ref_world[slot] = np.linalg.inv(np.asarray(prep.frame.T_world_cam, np.float64))
         self._buffer.append((prep.frame, slot))
         self._buffer.sort(key=lambda e: e[0].frame_id)
 
@@ -342,11 +345,7 @@ class Mapper:
         T_new_old = np.linalg.inv(new.frame.T_world_cam) @ np.asarray(self._cur.frame.T_world_cam, np.float64)
         R = np.ascontiguousarray(T_new_old[:3, :3])
         t = np.ascontiguousarray(T_new_old[:3, 3])
-        ns = self._spare                    # double buffer: only valid and positions need resetting
-        ns.valid[:] = 0
-        np.copyto(ns.pos_x, self._grid_x)   # pixels left empty keep their integer position
-        np.copyto(ns.pos_y, self._grid_y)
-        np.copyto(ns.blacklist, old.blacklist)   # the blacklist stays with the pixel location
+        ns = self._spare                    # double buffer: the kernel resets it (valid, positions, blacklist)
         aff = np.array(affine_transfer(self._cur.frame.affine, new.frame.affine))
         res = kernels.propagate_kernel(old, self._cur.image, new.image, new.maxgrad, R, t, self._cam,
                                        self._params, aff, ns, self._prop_work)
@@ -369,7 +368,7 @@ class Mapper:
         aff = np.zeros((n, 2))
         T_world_cur = np.asarray(self._cur.frame.T_world_cam, np.float64)
         for i, (f, slot) in enumerate(self._buffer):
-            T_ref_cur = np.linalg.inv(np.asarray(f.T_world_cam, np.float64)) @ T_world_cur
+            T_ref_cur = self._buf_T_ref_world[slot] @ T_world_cur     # the inverse computed once, on arrival
             slots[i], ids[i] = slot, f.frame_id
             Rs[i] = T_ref_cur[:3, :3]
             ts[i] = T_ref_cur[:3, 3]
@@ -407,7 +406,7 @@ class Mapper:
         stats.candidates = n_cand
         stride = max(self._budget_stride(n_cand), cfg.stereo_stride)
         stats.stride = stride
-        status = np.zeros((self.h, self.w), np.int8)
+        status = self._status          # the kernel writes every pixel it visits; the border stays 0
         if len(self._buffer) > 0 and self.h > 6 and self.w > 6:
             scratch = int(cfg.max_epl_search + cfg.min_epl_search) + 16
             prm = self._params
@@ -418,7 +417,9 @@ class Mapper:
             kernels.observe_kernel(cur.image, cur.gx, cur.gy, cur.maxgrad, self._reference_frames(), s, self._cam,
                                    prm, int(stride), int(self._iteration % stride), scratch, status,
                                    int(numba.get_num_threads()))
-        counts = np.bincount(status.ravel().astype(np.int64), minlength=9)
+        else:
+            status.fill(0)
+        counts = kernels.count_codes(status, 9)
         stats.no_epipolar, stats.skipped_converged = int(counts[7]), int(counts[8])
         stats.updated, stats.created, stats.inconsistent = int(counts[1]), int(counts[2]), int(counts[3])
         stats.failed, stats.no_reference, stats.removed_gradient = int(counts[4]), int(counts[5]), int(counts[6])
@@ -427,14 +428,14 @@ class Mapper:
         s = self.state
         o_valid = np.zeros_like(s.valid)
         n_before = int(np.count_nonzero(s.valid))
-        kernels.regularize_kernel(s, self._params, o_valid)
+        kernels.regularize_kernel(s, self._params, o_valid, self._reg_work)
         np.copyto(s.valid, o_valid)
         stats.removed_regularize = n_before - int(np.count_nonzero(o_valid))
 
     def _fill(self, stats: MappingStats) -> None:
         s = self.state
         new_flag = np.zeros_like(s.valid)
-        kernels.fill_kernel(s, self._cur.maxgrad, self._params, new_flag)
+        kernels.fill_kernel(s, self._cur.maxgrad, self._params, new_flag, self._fill_work)
         np.bitwise_or(s.valid, new_flag, out=s.valid)
         stats.filled = int(np.count_nonzero(new_flag))
 
@@ -444,8 +445,8 @@ class Mapper:
         0 where invalid)."""
         s = self.state
         valid = s.valid != 0
-        return (np.where(valid, s.idepth_s, 0.0).astype(np.float32),
-                np.where(valid, s.var_s, 0.0).astype(np.float32), valid)
+        zero = np.float32(0.0)          # float32 state and a float32 zero: float32 results, no second copy
+        return np.where(valid, s.idepth_s, zero), np.where(valid, s.var_s, zero), valid
 
 
 def depth_accuracy(idepth: np.ndarray, valid: np.ndarray, depth_gt_m: np.ndarray) -> dict:
