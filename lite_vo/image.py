@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["image_pyramid", "idepth_pyramid", "gradients", "intensity_gradient_stack", "bspline_coefficient_stack",
-           "downsample_image", "downsample_idepth", "gaussian_blur", "gaussian_kernel", "sharpness", "warmup"]
+           "bspline_horizon", "downsample_image", "downsample_idepth", "gaussian_blur", "gaussian_kernel", "sharpness", "warmup"]
 
 
 # --------------------------------------------------------------------------- kernels
@@ -331,9 +331,15 @@ def bspline_coefficient_stack(img: np.ndarray, out: np.ndarray | None = None, pr
     a = _as_image(img)
     if out is None or out.shape != a.shape + (1,) or out.dtype != np.float32:
         out = np.empty(a.shape + (1,), np.float32)
-    horizon = int(np.ceil(np.log(precision) / np.log(2.0 - np.sqrt(3.0)))) + 1
-    _bspline_coefficients(a, out, horizon)
+    _bspline_coefficients(a, out, bspline_horizon(precision))
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def bspline_horizon(precision: float = 1e-7) -> int:
+    """Terms of the B-spline prefilter's boundary initialisation sum: where ``z^k`` (``z = sqrt(3) - 2``)
+    falls below ``precision``."""
+    return int(np.ceil(np.log(precision) / np.log(2.0 - np.sqrt(3.0)))) + 1
 
 
 def gaussian_kernel(sigma: float, truncate: float = 2.5) -> np.ndarray:
@@ -351,19 +357,29 @@ def _gaussian_kernel(sigma: float, truncate: float) -> np.ndarray:
     return k / k.sum()
 
 
-def gaussian_blur(img: np.ndarray, sigma: float, truncate: float = 2.5) -> np.ndarray:
-    """Separable Gaussian blur (float32, mirror borders); ``sigma <= 0`` returns a float32 copy."""
+def gaussian_blur(img: np.ndarray, sigma: float, truncate: float = 2.5, out: np.ndarray | None = None) -> np.ndarray:
+    """Separable Gaussian blur (float32, mirror borders); ``sigma <= 0`` returns a float32 copy.
+    ``out``: a C-contiguous float32 array of the image's shape to write the result into (returned), or
+    None (a new array); it must not be the input."""
     a = _as_image(img)
+    if out is not None and (out.shape != a.shape or out.dtype != np.float32 or not out.flags.c_contiguous):
+        raise ValueError(f"out: expected a C-contiguous float32 array of shape {a.shape}, got {out.dtype} {out.shape}")
     if not sigma > 0:
-        return a.copy()
+        if out is None:
+            return a.copy()
+        out[...] = a
+        return out
     kern = gaussian_kernel(sigma, truncate)
     if min(a.shape) > kern.shape[0] // 2:
         # OpenCV's SIMD filter, about 12x faster than the loop below at 160x120 (float32 sums: equal
         # to it within float32 rounding); its reflect-101 border is the loop's mirror when the image is
         # larger than the kernel's radius
         import cv2
-        return cv2.sepFilter2D(a, cv2.CV_32F, kern, kern, borderType=cv2.BORDER_REFLECT_101)
-    out = np.empty_like(a)
+        if out is None:
+            return cv2.sepFilter2D(a, cv2.CV_32F, kern, kern, borderType=cv2.BORDER_REFLECT_101)
+        return cv2.sepFilter2D(a, cv2.CV_32F, kern, kern, dst=out, borderType=cv2.BORDER_REFLECT_101)
+    if out is None:
+        out = np.empty_like(a)
     _blur_separable(a, kern, np.empty_like(a), out)
     return out
 

@@ -141,6 +141,29 @@ def test_gaussian_blur_matches_naive_mirror_convolution(shape, sigma):
     np.testing.assert_array_equal(gaussian_blur(img, 0.0), img)
 
 
+@pytest.mark.parametrize("shape", [(120, 160), (15, 20), (2, 9)])
+@pytest.mark.parametrize("sigma", [0.7, 0.0])
+def test_gaussian_blur_into_out_equals_a_new_array(shape, sigma):
+    from lite_vo.image import gaussian_blur
+    img = (np.random.default_rng(4).random(shape) * 255).astype(np.float32)
+    out = np.full(shape, np.nan, np.float32)
+    got = gaussian_blur(img, sigma, out=out)
+    assert got is out
+    np.testing.assert_array_equal(out, gaussian_blur(img, sigma))
+    for bad in (np.empty(shape, np.float64), np.empty((shape[0] + 1, shape[1]), np.float32),
+                np.empty((shape[1], shape[0] * 2), np.float32)[:, ::2].T):
+        with pytest.raises(ValueError):
+            gaussian_blur(img, sigma, out=bad)
+
+
+def test_bspline_horizon():
+    from lite_vo.image import bspline_horizon
+    z = abs(2.0 - np.sqrt(3.0))
+    for precision in (1e-7, 1e-3, 1e-12):
+        k = bspline_horizon(precision)
+        assert z ** (k - 1) < precision <= z ** (k - 2)
+
+
 def _prefilter_line_naive(c, horizon):
     """Row-by-row twin of the cubic B-spline prefilter (plain Python floats, one line at a time)."""
     n = len(c)

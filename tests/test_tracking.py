@@ -343,28 +343,95 @@ def test_residual_spread_ignores_a_common_offset():
     """The lost test measures the residuals' spread around their median: a common brightness offset
     (KITTI's exposure changes with affine brightness off; the alignment itself fine) does not count,
     a residual that differs from point to point (a wrong pose, another scene) does."""
-    from lite_vo.tracking.tracker import _residual_spread
+    def spread(r):
+        return kernels.residual_spread(r, r.size)
     rng = np.random.default_rng(3)
     noise = rng.normal(0.0, 3.0, 4000)
-    sigma0, spread0 = _residual_spread(noise)
-    sigma1, spread1 = _residual_spread(noise + 20.0)
+    sigma0, spread0 = spread(noise)
+    sigma1, spread1 = spread(noise + 20.0)
     assert sigma1 == pytest.approx(sigma0) and spread1 == pytest.approx(spread0)
     assert np.mean(np.abs(noise + 20.0)) > TrackingConfig().max_abs_residual > spread1   # offset: not lost
     assert sigma0 == pytest.approx(3.0, rel=0.1) and spread0 == pytest.approx(3.0 * np.sqrt(2 / np.pi), rel=0.1)
     wide = rng.uniform(-60.0, 60.0, 4000)                         # garbage: residuals all over the place
-    assert _residual_spread(wide)[1] > TrackingConfig().max_abs_residual
-    assert all(np.isnan(v) for v in _residual_spread(np.ones(20)))   # every 4th of 20: fewer than 8, unknown
+    assert spread(wide)[1] > TrackingConfig().max_abs_residual
+    assert all(np.isnan(v) for v in spread(np.ones(20)))          # every 4th of 20: fewer than 8, unknown
 
 
-def test_residual_spread_equals_numpys_median_and_mean():
-    """The hot-path medians (sorted copies) give np.median's values bit for bit, odd and even sizes."""
-    from lite_vo.tracking.tracker import _residual_spread
-    rng = np.random.default_rng(5)
-    for n in (32, 33, 34, 35, 4001, 9422):
-        r = rng.standard_t(3, size=n) * 4.0
-        q = r[::4]
-        dev = np.abs(q - np.median(q))
-        assert _residual_spread(r) == (float(1.4826 * np.median(dev)), float(np.mean(dev)))
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_residual_spread_equals_numpys_median_and_mean_bit_for_bit(seed):
+    """The kernel (quickselect medians, numpy's pairwise summation order) gives the numpy twin's values
+    bit for bit: odd and even counts, ties, signed zeros, a buffer longer than n, the 8-value limit."""
+    rng = np.random.default_rng(seed)
+    sizes = [1, 28, 29, 31, 32, 33, 34, 35, 36, 515, 516, 517, 520, 4001, 9422] + list(rng.integers(1, 20000, 40))
+    for k, n in enumerate(sizes):
+        r = rng.standard_t(3, size=n + 7) * rng.uniform(0.1, 20.0)
+        if k % 3 == 1:
+            r = np.round(r)                                       # many equal values
+        if k % 4 == 2:
+            r[rng.random(r.size) < 0.3] = 0.0
+            r[rng.random(r.size) < 0.1] = -0.0
+        got = kernels.residual_spread(r, int(n))
+        want = naive.residual_spread(r, int(n))
+        if np.isnan(want[0]):
+            assert np.isnan(got[0]) and np.isnan(got[1]), n
+        else:
+            assert got == want, n
+
+
+def test_pairwise_sum_is_numpys_sum_bit_for_bit():
+    rng = np.random.default_rng(7)
+    for n in list(range(1, 300)) + [1024, 1025, 1031] + list(rng.integers(300, 50000, 60)):
+        a = np.abs(rng.standard_cauchy(int(n) + 3)) * rng.uniform(0.1, 100.0)
+        assert kernels._pairwise_sum(a, int(n)) == np.sum(a[:n]), n
+        assert kernels._pairwise_sum(a, int(n)) / n == np.mean(a[:n]), n
+
+
+@pytest.mark.parametrize("interp", [kernels.INTERP_BILINEAR, kernels.INTERP_BSPLINE])
+@pytest.mark.parametrize("with_affine", [False, True])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_track_level_matches_its_pieces(seed, with_affine, interp):
+    """kernels.track_level = the image module's stack + lm_level + the hand-over of pose and brightness,
+    bit for bit (the stack, pose, brightness, accumulator, stats and scratch rows)."""
+    from lite_vo.image import bspline_horizon
+    rng = np.random.default_rng(seed)
+    h, w = 60, 80
+    yy, xx = np.mgrid[0:h, 0:w]
+    img = (120 + 60 * np.sin(xx / 5.0 + seed) * np.cos(yy / 7.0) + rng.normal(0, 2, (h, w))).astype(np.float32)
+    cam, prm, _, _ = _args(70.0, 70.0, 39.5, 29.5, 4.0, 1.5, 1.0, 0.0, with_affine, 1600.0, 0.25, 1.0, 1e-3)
+    for k, v in ((kernels.TP_CONV_RATIO, 0.999), (kernels.TP_CONV_EPS, 1e-8), (kernels.TP_LAMBDA_INIT, 0.2),
+                 (kernels.TP_LAMBDA_ACCEPT_MAX, 0.2), (kernels.TP_LAMBDA_ACCEPT_FACTOR, 0.5),
+                 (kernels.TP_LAMBDA_REJECT_FACTOR, 2.0), (kernels.TP_MIN_POINTS, 10), (kernels.TP_SOLVE_EPS, 1e-12),
+                 (kernels.TP_MIN_HESSIAN_DIAG, 0.01), (kernels.TP_AFF_PRIOR_A, 0.01), (kernels.TP_AFF_PRIOR_B, 1e-5)):
+        prm[k] = v
+    pts = _random_points(rng, 400)
+    T0 = exp_se3(np.array([0.01, -0.005, 0.02, 0.01, -0.02, 0.005]))
+    channels = 1 if interp == kernels.INTERP_BSPLINE else 3
+    for case in ("normal", "no points"):
+        p = pts.copy()
+        if case == "no points":
+            p[:, 2] = -1.0                                        # all behind the camera: status 1, nothing handed on
+        p.flags.writeable = False                                 # as a TrackingReference hands them
+        outs = []
+        for fn in ("kernel", "twin"):
+            T, aff = T0.copy(), np.array([1.1, -3.0])
+            img3 = np.full((h, w, channels), np.nan, np.float32)
+            buf = np.zeros((kernels.BUF_ROWS, 512))
+            T_out, acc, aff_out, stats = np.empty((4, 4)), np.empty(kernels.ACC_SIZE), np.empty(2), np.zeros(kernels.ST_SIZE)
+            if fn == "kernel":
+                status = kernels.track_level(p, img, interp, bspline_horizon(), img3, T, cam, prm, 20, aff, buf,
+                                             T_out, acc, aff_out, stats)
+            else:
+                status = naive.track_level(p, img, interp, img3, T, cam, prm, 20, aff, buf, T_out, acc, aff_out, stats)
+            outs.append((status, img3, T, aff, acc, stats, buf[:, :int(stats[kernels.ST_LAST_N])]))
+        (s0, *a0), (s1, *a1) = outs
+        assert s0 == s1 == (1 if case == "no points" else 0)
+        for x0, x1 in zip(a0, a1):
+            np.testing.assert_array_equal(x0, x1)
+        if case == "no points":
+            np.testing.assert_array_equal(a0[1], T0)
+            np.testing.assert_array_equal(a0[2], [1.1, -3.0])
+        else:
+            assert not np.array_equal(a0[1], T0)
 
 
 def test_bright_saturated_garbage_fails_good_ratio(room_pair):

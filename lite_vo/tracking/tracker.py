@@ -8,6 +8,7 @@ Imports numpy, :mod:`lite_vo.image`, :mod:`lite_vo.geometry` and the tracking ke
 from __future__ import annotations
 
 import itertools
+import math
 import statistics
 import time
 from collections import Counter, deque
@@ -17,7 +18,7 @@ import numpy as np
 
 from ..camera import PinholeIntrinsics
 from ..geometry import exp_se3, exp_so3, inverse_se3, log_se3, make_pose, project_to_se3
-from ..image import bspline_coefficient_stack, gaussian_blur, gaussian_kernel, intensity_gradient_stack
+from ..image import bspline_horizon, gaussian_blur, gaussian_kernel
 from . import _kernels as kernels
 from .config import TrackingConfig
 from .reference import TrackingReference
@@ -122,23 +123,6 @@ def motion_hypotheses(T_ref_last: np.ndarray, velocity: np.ndarray, rotation_rad
     return out
 
 
-def _residual_spread(r: np.ndarray) -> tuple[float, float]:
-    """Of every 4th residual: (1.4826 * median absolute deviation, mean absolute deviation from the
-    median); both ignore a common offset (a global brightness change). NaN when fewer than 8."""
-    r = r[::4]
-    if r.size < 8:
-        return float("nan"), float("nan")
-    dev = np.abs(r - _sorted_median(np.sort(r)))
-    return float(1.4826 * _sorted_median(np.sort(dev))), float(np.mean(dev))
-
-
-def _sorted_median(s: np.ndarray) -> float:
-    """Median of an already sorted 1-D array of finite values: the same value as ``np.median`` (the middle
-    element, or the two middle ones summed and halved), without its per-call overhead (tracking hot path)."""
-    k = s.size // 2
-    return s[k] if s.size % 2 else (s[k - 1] + s[k]) / 2
-
-
 class Tracker:
     """Direct SE(3) tracker (tracking thread only).
 
@@ -160,7 +144,12 @@ class Tracker:
         self._cams = [np.array([k.fx, k.fy, k.cx, k.cy], np.float64) for k in self._intr]
         self._params = tracking_params(config)
         self._frame_params = self._params.copy()          # per frame: sigma_i may follow the noise
-        self._img3 = [None] * self.pyramid_levels
+        self._img3 = [None] * self.pyramid_levels         # per level: the new image's interpolation stack
+        self._smoothed = [None] * self.pyramid_levels     # per level: the new image after the reference's blur
+        self._shapes = [(k.height, k.width) for k in self._intr]
+        self._T = np.empty((4, 4))                        # T_new_ref, handed from level to level
+        self._horizon = bspline_horizon()
+        self._noise_gains: dict = {}
         self._acc = np.zeros(kernels.ACC_SIZE)
         self._T_out = np.empty((4, 4))
         self._aff = np.empty(2)
@@ -184,9 +173,12 @@ class Tracker:
     def noise_gain(self, smooth_sigma: float) -> float:
         """Std of white image noise (mapping resolution) after the tracking pyramid's box averages and
         the reference's Gaussian smoothing, at the finest tracking level, relative to the input std."""
-        g = 0.5 ** self.track_level
-        if smooth_sigma > 0:
-            g *= float(np.sum(gaussian_kernel(smooth_sigma) ** 2))
+        g = self._noise_gains.get(smooth_sigma)
+        if g is None:
+            g = 0.5 ** self.track_level
+            if smooth_sigma > 0:
+                g *= float(np.sum(gaussian_kernel(smooth_sigma) ** 2))
+            self._noise_gains[smooth_sigma] = g
         return g
 
     def track(self, ref: TrackingReference, image_pyr_new, T_ref_new_guess, affine_guess=(1.0, 0.0),
@@ -272,13 +264,14 @@ class Tracker:
         t_start = time.perf_counter()
         c = self.config
         prm = self._frame_params
-        sig = c.sigma_i if sigma_i is None or not np.isfinite(sigma_i) else max(float(sigma_i), 1e-3)
+        sig = c.sigma_i if sigma_i is None or not math.isfinite(sigma_i) else max(float(sigma_i), 1e-3)
         prm[kernels.TP_SIGMA_I2] = sig * sig
         guess = np.asarray(T_ref_new_guess, dtype=np.float64)
         if guess.shape != (4, 4) or not np.all(np.isfinite(guess)):
             raise ValueError("T_ref_new_guess must be a finite 4x4 matrix")
         guess = project_to_se3(guess)
-        T = np.ascontiguousarray(inverse_se3(guess))          # T_new_ref
+        T = self._T                                           # T_new_ref (kernels.track_level updates it)
+        T[...] = inverse_se3(guess)
         n_lvl = min(len(image_pyr_new), ref.num_levels)
         top = min(self.coarsest, n_lvl - 1)
         finest = self.track_level
@@ -286,49 +279,51 @@ class Tracker:
             raise ValueError(f"pyramids have {n_lvl} levels, tracking needs level {finest}")
         aff = self._aff
         aff[0], aff[1] = float(affine_guess[0]), float(affine_guess[1])
-        if not (np.isfinite(aff[0]) and aff[0] > 0 and np.isfinite(aff[1])):
+        if not (math.isfinite(aff[0]) and aff[0] > 0 and math.isfinite(aff[1])):
             aff[0], aff[1] = 1.0, 0.0
         level_ms: dict = {}
         iterations: dict = {}
         acc = self._acc
+        stats = self._stats
+        smooth = ref.smooth_sigma
         finest_acc = None
         finest_status = 1
         coarse_err = float("nan")
         for lvl in range(top, finest - 1, -1):
             t0 = time.perf_counter()
             lv = ref.levels[lvl]
-            intr = self._intr[lvl]
-            if lv.num_points < c.min_points and lvl != finest:
+            n_pts = lv.num_points
+            if n_pts < c.min_points and lvl != finest:
                 level_ms[lvl] = (time.perf_counter() - t0) * 1e3
                 iterations[lvl] = 0
                 continue
             img = image_pyr_new[lvl]
-            if img.shape != (intr.height, intr.width):
-                raise ValueError(f"new image level {lvl} has shape {img.shape}, expected "
-                                 f"{(intr.height, intr.width)}")
-            if self._buf.shape[1] < lv.num_points:
-                self._buf = np.empty((kernels.BUF_ROWS, max(lv.num_points, 2 * self._buf.shape[1])))
-            if ref.smooth_sigma > 0:
-                img = gaussian_blur(img, ref.smooth_sigma)
-            interp = self._interp_fine if lvl == finest else self._interp_coarse
-            if interp == kernels.INTERP_BSPLINE:
-                img3 = self._img3[lvl] = bspline_coefficient_stack(img, self._img3[lvl])
+            if img.shape != self._shapes[lvl]:
+                raise ValueError(f"new image level {lvl} has shape {img.shape}, expected {self._shapes[lvl]}")
+            if self._buf.shape[1] < n_pts:
+                self._buf = np.empty((kernels.BUF_ROWS, max(n_pts, 2 * self._buf.shape[1])))
+            if smooth > 0:
+                out = self._smoothed[lvl]
+                if out is None:
+                    out = self._smoothed[lvl] = np.empty(self._shapes[lvl], np.float32)
+                img = gaussian_blur(img, smooth, out=out)
             else:
-                img3 = self._img3[lvl] = intensity_gradient_stack(img, self._img3[lvl])
-            kernels.lm_level(lv.points, img3, interp, T, self._cams[lvl], prm, self._max_iter(lvl), aff,
-                             self._buf, self._T_out, acc, self._aff_out, self._stats)
-            status = int(self._stats[kernels.ST_STATUS])
-            if status != 1 and np.all(np.isfinite(self._T_out)):
-                T = self._T_out.copy()
-                aff[:] = self._aff_out
-            iterations[lvl] = int(self._stats[kernels.ST_ITER])
-            if status != 1 and not np.isfinite(coarse_err):
-                coarse_err = float(self._stats[kernels.ST_ERR])
+                img = np.ascontiguousarray(img, dtype=np.float32)
+            interp = self._interp_fine if lvl == finest else self._interp_coarse
+            img3 = self._img3[lvl]
+            channels = 1 if interp == kernels.INTERP_BSPLINE else 3
+            if img3 is None or img3.shape[2] != channels:
+                img3 = self._img3[lvl] = np.empty(self._shapes[lvl] + (channels,), np.float32)
+            status = kernels.track_level(lv.points, img, interp, self._horizon, img3, T, self._cams[lvl], prm,
+                                         self._max_iter(lvl), aff, self._buf, self._T_out, acc, self._aff_out, stats)
+            iterations[lvl] = int(stats[kernels.ST_ITER])
+            if status != 1 and not math.isfinite(coarse_err):
+                coarse_err = float(stats[kernels.ST_ERR])
             if lvl == finest:
                 finest_acc = acc.copy()
                 finest_status = status
-                finest_err = float(self._stats[kernels.ST_ERR])
-                finest_sigma, finest_spread = _residual_spread(self._buf[6, :int(self._stats[kernels.ST_LAST_N])])
+                finest_err = float(stats[kernels.ST_ERR])
+                finest_sigma, finest_spread = kernels.residual_spread(self._buf[6], int(stats[kernels.ST_LAST_N]))
             level_ms[lvl] = (time.perf_counter() - t0) * 1e3
 
         lv = ref.levels[finest]
@@ -350,10 +345,11 @@ class Tracker:
         res.mean_abs_residual = float(finest_acc[kernels.ACC_ABS_R] / max(n_in, 1.0))
         res.residual_sigma = finest_sigma
         res.residual_spread = finest_spread
-        res.noise_sigma = finest_sigma / (self.noise_gain(ref.smooth_sigma) * float(np.sqrt(1.0 + aff[0] * aff[0])))
-        if np.all(np.isfinite(T)):
+        res.noise_sigma = finest_sigma / (self.noise_gain(smooth) * math.sqrt(1.0 + aff[0] * aff[0]))
+        finite = bool(np.all(np.isfinite(T)))
+        if finite:
             res.T_ref_new = inverse_se3(project_to_se3(T))
-        if not np.all(np.isfinite(T)):
+        if not finite:
             res.lost_reason = "non-finite pose"
         elif res.inside_ratio < c.min_inside_ratio:
             res.lost_reason = "too few points inside the image"
