@@ -11,10 +11,15 @@ Owns:
 * :func:`intensity_gradient_stack` - ``(H, W, 3)`` float32 ``[I, gx, gy]`` interleaved, the layout the
   tracking kernel samples bilinearly (one cache line per corner).
 * :func:`bspline_coefficient_stack` - cubic B-spline coefficients ((H, W, 1)), for
-  bicubic-spline sampling in tracking (much less "pixel locking" than bilinear interpolation).
-* :func:`gaussian_blur` - separable Gaussian (mirror borders), the tracking images' anti-aliasing.
+  bicubic-spline sampling in tracking (much less "pixel locking" than bilinear interpolation);
+  :func:`bspline_horizon` - the length of its boundary initialisation sum.
+* :func:`gaussian_blur` - separable Gaussian (mirror borders), the tracking images' anti-aliasing
+  (optionally into a caller's buffer: the tracker reuses one per level).
 * :func:`sharpness` - mean squared gradient over the intensity variance (motion-blur score).
 * :func:`warmup` - compiles every kernel of this module on tiny inputs.
+
+The kernels named ``*_nb`` (:func:`gradient_stack_nb`, :func:`bspline_coefficients_nb`) are public for
+other numba kernels to call (the tracker fuses them with its alignment); Python code uses the wrappers.
 
 Imports numpy and numba only (no other lite_vo module, no OpenCV).
 """
@@ -68,7 +73,8 @@ def _downsample_idepth(idepth, var, valid, out_idepth, out_var, out_valid):
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def _gradient_stack(img, out):
+def gradient_stack_nb(img, out):
+    """``out[:, :, :3] = [I, gx, gy]`` of ``img`` (half central differences, zero on the border)."""
     h, w = img.shape
     for y in range(h):
         for x in range(w):
@@ -114,7 +120,7 @@ def _bspline_prefilter_rows(c, r0, r1, horizon):
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def _bspline_coefficients(img, out, horizon):
+def bspline_coefficients_nb(img, out, horizon):
     """Cubic B-spline coefficients of ``img`` into ``out[:, :, 0]`` (rows, then columns; the column
     recursion runs over whole rows at once so memory is read contiguously)."""
     h, w = img.shape
@@ -319,7 +325,7 @@ def intensity_gradient_stack(img: np.ndarray, out: np.ndarray | None = None) -> 
     a = _as_image(img)
     if out is None or out.shape != a.shape + (3,) or out.dtype != np.float32:
         out = np.empty(a.shape + (3,), np.float32)
-    _gradient_stack(a, out)
+    gradient_stack_nb(a, out)
     return out
 
 
@@ -331,7 +337,7 @@ def bspline_coefficient_stack(img: np.ndarray, out: np.ndarray | None = None, pr
     a = _as_image(img)
     if out is None or out.shape != a.shape + (1,) or out.dtype != np.float32:
         out = np.empty(a.shape + (1,), np.float32)
-    _bspline_coefficients(a, out, bspline_horizon(precision))
+    bspline_coefficients_nb(a, out, bspline_horizon(precision))
     return out
 
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..image import _bspline_coefficients, _gradient_stack
+from ..image import bspline_coefficients_nb, gradient_stack_nb
 
 PTS_COLS = 5
 BUF_ROWS = 9       # per-point scratch rows: jx, jy, jz, qx, qy, qz, r, w, I_ref
@@ -566,9 +566,9 @@ def track_level(pts, img, interp, horizon, img3, T, cam, prm, max_iter, aff, buf
     brightness ``aff``. When the level has a result (status not 1) and its pose is finite, ``T`` and
     ``aff`` are overwritten with it (the next level starts there). Returns the status (``ST_STATUS``)."""
     if interp == INTERP_BSPLINE:
-        _bspline_coefficients(img, img3, horizon)
+        bspline_coefficients_nb(img, img3, horizon)
     else:
-        _gradient_stack(img, img3)
+        gradient_stack_nb(img, img3)
     lm_level(pts, img3, interp, T, cam, prm, max_iter, aff, buf, T_out, acc_out, aff_out, stats)
     status = int(stats[ST_STATUS])
     if status != 1:

@@ -267,7 +267,7 @@ class Tracker:
         sig = c.sigma_i if sigma_i is None or not math.isfinite(sigma_i) else max(float(sigma_i), 1e-3)
         prm[kernels.TP_SIGMA_I2] = sig * sig
         guess = np.asarray(T_ref_new_guess, dtype=np.float64)
-        if guess.shape != (4, 4) or not np.all(np.isfinite(guess)):
+        if guess.shape != (4, 4) or not np.isfinite(guess).all():
             raise ValueError("T_ref_new_guess must be a finite 4x4 matrix")
         guess = project_to_se3(guess)
         T = self._T                                           # T_new_ref (kernels.track_level updates it)
@@ -346,7 +346,7 @@ class Tracker:
         res.residual_sigma = finest_sigma
         res.residual_spread = finest_spread
         res.noise_sigma = finest_sigma / (self.noise_gain(smooth) * math.sqrt(1.0 + aff[0] * aff[0]))
-        finite = bool(np.all(np.isfinite(T)))
+        finite = bool(np.isfinite(T).all())
         if finite:
             res.T_ref_new = inverse_se3(project_to_se3(T))
         if not finite:
