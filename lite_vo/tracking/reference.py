@@ -6,6 +6,7 @@ intrinsics, :mod:`lite_vo.image` and the tracking kernels' layout constants only
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +21,14 @@ def _ro(a: np.ndarray) -> np.ndarray:
     a = np.ascontiguousarray(a)
     a.flags.writeable = False
     return a
+
+
+@functools.lru_cache(maxsize=16)
+def _stride_mask(shape: tuple, stride: int) -> np.ndarray:
+    """``(x + y) % stride == 0`` over an image of ``shape`` (read-only; made once per shape and stride:
+    a map is published at every mapping iteration)."""
+    yy, xx = np.indices(shape)
+    return _ro((xx + yy) % stride == 0)
 
 
 @dataclass(frozen=True)
@@ -122,8 +131,7 @@ class TrackingReference:
             mask = ms[lvl]
             stride = point_stride if lvl == min_level else coarse_point_stride if lvl == min_level + 1 else 1
             if stride > 1:
-                yy, xx = np.indices(mask.shape)
-                mask = mask & ((xx + yy) % stride == 0)
+                mask = mask & _stride_mask(mask.shape, stride)
             n = int(np.count_nonzero(mask)) if lvl >= min_level else 0
             pts = np.empty((n, PTS_COLS), np.float32)
             xs = np.empty(n, np.float32)
