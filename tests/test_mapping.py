@@ -741,3 +741,29 @@ def test_interleaved_rows_visit_every_row_once_spread_over_the_image():
     # each half of the order (what one of two threads gets) has a block from every 16 rows
     assert {int(y - 3) // 16 for y in first_half} == {int(y - 3) // 16 for y in second_half}
     assert np.all(np.diff(first_half[:8]) == 1)                   # rows inside a block stay consecutive
+
+
+def test_count_codes_matches_bincount():
+    rng = np.random.default_rng(12)
+    codes = rng.integers(-2, 12, (37, 53)).astype(np.int8)
+    want = np.bincount(codes[(codes >= 0) & (codes < 9)].astype(np.int64), minlength=9)
+    np.testing.assert_array_equal(kernels.count_codes(codes, 9), want)
+
+
+def test_published_map_is_zero_where_invalid(tex):
+    """Mapper.current() (one kernel pass) equals the numpy expression it replaced, bit for bit."""
+    m = Mapper(MappingConfig(), K_SMALL)
+    frames = _plane_frames(tex, 4, K_SMALL)
+    m.initialize_random(frames[0][0])
+    for f, _ in frames[1:]:
+        m.update(f)
+    d, v, valid = m.current()
+    s = m.state
+    want_valid = s.valid != 0
+    assert d.dtype == v.dtype == np.float32 and valid.dtype == np.bool_
+    np.testing.assert_array_equal(valid, want_valid)
+    np.testing.assert_array_equal(d, np.where(want_valid, s.idepth_s, 0.0).astype(np.float32))
+    np.testing.assert_array_equal(v, np.where(want_valid, s.var_s, 0.0).astype(np.float32))
+    assert 0 < valid.sum() < valid.size
+    d[:] = -1.0                                   # a copy: the map itself is not touched
+    assert np.all(m.current()[0][valid] == s.idepth_s[valid])

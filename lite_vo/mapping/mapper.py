@@ -444,9 +444,10 @@ class Mapper:
         """(idepth, idepth_var, valid) of the map in :attr:`frame` (copies; regularised values;
         0 where invalid)."""
         s = self.state
-        valid = s.valid != 0
-        zero = np.float32(0.0)          # float32 state and a float32 zero: float32 results, no second copy
-        return np.where(valid, s.idepth_s, zero), np.where(valid, s.var_s, zero), valid
+        out = (np.empty((self.h, self.w), np.float32), np.empty((self.h, self.w), np.float32),
+               np.empty((self.h, self.w), np.bool_))
+        kernels.masked_map(s.idepth_s, s.var_s, s.valid, *out)
+        return out
 
 
 def depth_accuracy(idepth: np.ndarray, valid: np.ndarray, depth_gt_m: np.ndarray) -> dict:
