@@ -276,7 +276,7 @@ def _prop_args(cfg):
             float(cfg.prop_merge_fac), float(cfg.propagation_sigma), float(cfg.validity_max + cfg.validity_max_grad))
 
 
-def _run_propagate(st, img_old, img_new, mg_new, T_new_old, Kc, cfg, aff=(1.0, 0.0)):
+def _run_propagate(st, img_old, img_new, mg_new, T_new_old, Kc, cfg, aff=(1.0, 0.0), bands=1):
     h, w = img_old.shape
     # the new map starts as garbage (the Mapper hands in the map of two frames ago): the kernel resets
     # valid, positions and blacklist itself; the rest only matters where a hypothesis lands
@@ -286,15 +286,16 @@ def _run_propagate(st, img_old, img_new, mg_new, T_new_old, Kc, cfg, aff=(1.0, 0
         "blacklist")}
     R, t = np.ascontiguousarray(T_new_old[:3, :3]), np.ascontiguousarray(T_new_old[:3, 3])
     res = kernels.propagate_kernel(_ms(st), img_old, img_new, mg_new, R, t, _cam(Kc), mapping_params(cfg),
-                                   np.array(aff, np.float64), _ms(out), kernels.propagation_work(h, w))
+                                   np.array(aff, np.float64), _ms(out), kernels.propagation_work(h, w), bands)
     for k in ("idepth", "idepth_var", "idepth_s", "var_s", "validity", "ref_id", "skip"):
         out[k][out["valid"] == 0] = 0             # left as they were: not part of the result
     return out, res
 
 
+@pytest.mark.parametrize("bands", [1, 5])
 @pytest.mark.parametrize("motion", [dict(tx=0.05), dict(tx=0.02, tz=0.3, rot=(0.02, 0.01, 0.1)), dict(tz=-1.5),
                                     dict(tx=2.0)])
-def test_propagate_matches_naive(tex, motion):
+def test_propagate_matches_naive(tex, motion, bands):
     rng = np.random.default_rng(3)
     cfg = dataclasses.replace(MappingConfig(), propagation_sigma=1e-4)
     T_old, T_new = pose(), pose(**motion)
@@ -309,7 +310,7 @@ def test_propagate_matches_naive(tex, motion):
     T_new_old = np.linalg.inv(T_new) @ T_old
     aff = (1.15, -9.0)                             # the new frame is brighter: compensated in the intensity check
     img_new = aff[0] * img_new + aff[1]
-    out, res = _run_propagate(st, img_old, img_new, mg_new, T_new_old, K_SMALL, cfg, aff)
+    out, res = _run_propagate(st, img_old, img_new, mg_new, T_new_old, K_SMALL, cfg, aff, bands)
     nout, counts = naive.propagate(st, img_old, img_new, mg_new, T_new_old[:3, :3], T_new_old[:3, 3], K_SMALL.fx,
                                    K_SMALL.fy, K_SMALL.cx, K_SMALL.cy, *_prop_args(cfg), aff=aff)
     assert tuple(res) == (counts["kept"], counts["border"], counts["intensity"], counts["occluded"], counts["fused"])
@@ -317,8 +318,9 @@ def test_propagate_matches_naive(tex, motion):
         np.testing.assert_allclose(out[k], nout[k], rtol=2e-5, atol=1e-6, err_msg=k)
 
 
+@pytest.mark.parametrize("bands", [1, 3])
 @pytest.mark.parametrize("near_first", [True, False])
-def test_propagation_occlusion_nearer_wins(near_first):
+def test_propagation_occlusion_nearer_wins(near_first, bands):
     """Two hypotheses that land on the same pixel with inconsistent depths: the farther one is
     removed, whichever comes first in scan order; consistent ones are fused (variance drops)."""
     cfg = MappingConfig()
@@ -340,7 +342,7 @@ def test_propagation_occlusion_nearer_wins(near_first):
         st["valid"][10, x] = 1
         st["idepth_s"][10, x] = d
         st["idepth_var"][10, x] = 1e-4
-    out, res = _run_propagate(st, img, img, mg, T_new_old, Kc, cfg)
+    out, res = _run_propagate(st, img, img, mg, T_new_old, Kc, cfg, bands=bands)
     assert out["valid"].sum() == 1
     assert res[3] == 1                                  # one occlusion
     iy, ix = np.argwhere(out["valid"])[0]
@@ -349,7 +351,7 @@ def test_propagation_occlusion_nearer_wins(near_first):
     st["idepth_s"][10, far_x] = d_near * 1.001
     st["idepth_var"][10, far_x] = 1e-4
     st["pos_x"][10, far_x] = near_x                     # same position, same depth: same target pixel
-    out, res = _run_propagate(st, img, img, mg, T_new_old, Kc, cfg)
+    out, res = _run_propagate(st, img, img, mg, T_new_old, Kc, cfg, bands=bands)
     assert out["valid"].sum() == 1 and res[4] == 1
     assert out["idepth_var"][out["valid"] == 1][0] < 1e-4
 

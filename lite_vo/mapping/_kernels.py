@@ -122,9 +122,9 @@ def _bilinear(img, x, y):
 
 #: rows per block of the parallel stereo pass's row order (:func:`interleaved_rows`)
 ROW_BLOCK = 8
-#: bands of target rows in the parallel collision pass of :func:`propagate_kernel` (a multiple of the
-#: usual thread counts; the result does not depend on it)
-PROPAGATE_BANDS = 12
+#: bands of target rows per numba thread in the parallel collision pass of :func:`propagate_kernel`
+#: (see :func:`propagation_bands`)
+PROPAGATE_BANDS_PER_THREAD = 4
 
 
 @njit(cache=True, nogil=True)
@@ -592,7 +592,7 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
-def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, new, work):
+def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, new, work, bands=1):
     """Forward-warp every hypothesis of the map ``old`` into the map ``new`` of the new frame
     (both :class:`MapState`). ``R, t`` = T_new_old; ``cam = (fx, fy, cx, cy)``;
     ``aff = (a, b)``: brightness transfer of the old frame into the new one (the intensity check
@@ -606,7 +606,8 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
     2. over bands of TARGET rows: a band visits, in raster order, the source rows whose hypotheses
        land in it (pass 1 records each source row's range of target rows) and resolves the
        collisions on its own target pixels. Every target pixel sees its sources in raster order,
-       as one serial loop over the image would.
+       as one serial loop over the image would. ``bands``: how many (pass :func:`propagation_bands`;
+       1 = one serial loop); the result does not depend on it.
 
     ``new``'s arrays are only written where a hypothesis lands (after the reset); ``work``: the
     :class:`PropagationWork` scratch of the map's size (allocated once by the caller). Returns
@@ -699,7 +700,7 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
         row_lo[y] = lo_y
         row_hi[y] = hi_y
     # pass 2: collisions, per band of target rows; each band's sources in raster order
-    nb = min(PROPAGATE_BANDS, h)
+    nb = min(max(bands, 1), h)
     band_counts = np.zeros((nb, 3), np.int64)        # kept, occluded, fused
     for b in prange(nb):
         b_lo = (b * h) // nb
@@ -936,6 +937,12 @@ def fill_kernel(st, maxgrad, prm, new_flag, work):
             new_flag[y, x] = 1
 
 
+def propagation_bands(num_threads: int) -> int:
+    """Bands of target rows for :func:`propagate_kernel` with this many numba threads: one for one thread
+    (no source row is visited twice), else a few per thread (balances them)."""
+    return 1 if num_threads <= 1 else PROPAGATE_BANDS_PER_THREAD * num_threads
+
+
 def propagation_work(h: int, w: int) -> PropagationWork:
     """Scratch arrays of :func:`propagate_kernel` for an HxW map."""
     return PropagationWork(np.empty((h, w), np.int64), np.empty((h, w), np.float64), np.empty((h, w), np.float64),
@@ -1036,6 +1043,7 @@ def warmup() -> None:
     observe_kernel(img, gx, gy, mg, refs, st, cam, prm, 1, 0, 64, status, 2)    # as the Mapper calls it
     new = new_state(h, w)
     propagate_kernel(st, img, img, mg, R, t, cam, prm, np.array([1.0, 0.0]), new, propagation_work(h, w))
+    propagate_kernel(st, img, img, mg, R, t, cam, prm, np.array([1.0, 0.0]), new, propagation_work(h, w), 8)
     o_valid = np.zeros((h, w), np.uint8)
     regularize_kernel(st, prm, o_valid, regularize_work(h, w, int(prm[P_REG_RADIUS])))
     fill_kernel(st, mg, prm, o_valid, fill_work(h, w))

@@ -348,7 +348,8 @@ class Mapper:
         ns = self._spare                    # double buffer: the kernel resets it (valid, positions, blacklist)
         aff = np.array(affine_transfer(self._cur.frame.affine, new.frame.affine))
         res = kernels.propagate_kernel(old, self._cur.image, new.image, new.maxgrad, R, t, self._cam,
-                                       self._params, aff, ns, self._prop_work)
+                                       self._params, aff, ns, self._prop_work,
+                                       kernels.propagation_bands(numba.get_num_threads()))
         k = cfg.blacklist_recovery_frames
         if k > 0 and self._iteration % k == 0:
             np.add(ns.blacklist, 1, out=ns.blacklist, where=ns.blacklist < 0)
