@@ -227,7 +227,7 @@ class Session:
         if self.warm_up_kernels:           # compile/load kernels before the clock starts
             with announce_if_slow("compiling the numba kernels (the first run on this machine takes about a "
                                   "minute; `lite-vo warmup` does it once after installing) ..."):
-                warmup(CORE_KERNEL_MODULES)
+                warmup(CORE_KERNEL_MODULES, runtime=True)   # what a run uses: each loaded kernel costs memory
         warmup_s = time.perf_counter() - t_warm
         seq, cfg = self.sequence, self.config
         vo = VisualOdometry(seq.camera, cfg, depth_source=self.depth_source,

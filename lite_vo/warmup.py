@@ -20,6 +20,7 @@ Imports: the standard library only at module level. The kernel modules are impor
 from __future__ import annotations
 
 import importlib
+import inspect
 import time
 from dataclasses import asdict, dataclass
 from importlib.metadata import entry_points
@@ -75,8 +76,12 @@ def _is_missing(err: ModuleNotFoundError, module: str) -> bool:
     return module == err.name or module.startswith(err.name + ".")
 
 
-def warmup_module(module: str) -> ModuleWarmup:
-    """Import ``module`` and call its ``warmup()``; never raises for a missing or broken module."""
+def warmup_module(module: str, runtime: bool = False) -> ModuleWarmup:
+    """Import ``module`` and call its ``warmup()``; never raises for a missing or broken module.
+
+    ``runtime``: ask the module for the kernels a run uses only (``warmup(runtime=True)``, where its
+    ``warmup`` takes that argument): every kernel loaded into a process costs memory (about 0.5-2 MB
+    each), and the tests and tools use signatures a run never needs."""
     t0 = time.perf_counter()
     try:
         mod = importlib.import_module(module)
@@ -97,7 +102,10 @@ def warmup_module(module: str) -> ModuleWarmup:
         return ModuleWarmup(module, "no_warmup", import_s, message="module has no warmup() (skipped)")
     t1 = time.perf_counter()
     try:
-        fn()
+        if runtime and "runtime" in inspect.signature(fn).parameters:
+            fn(runtime=True)
+        else:
+            fn()
     except Exception as err:  # noqa: BLE001
         return ModuleWarmup(module, "error", import_s, time.perf_counter() - t1,
                             message=f"warmup() failed: {type(err).__name__}: {err}")
@@ -105,15 +113,16 @@ def warmup_module(module: str) -> ModuleWarmup:
 
 
 def warmup(modules: Iterable[str] | None = None,
-           on_result: Callable[[ModuleWarmup], None] | None = None) -> list[ModuleWarmup]:
+           on_result: Callable[[ModuleWarmup], None] | None = None, runtime: bool = False) -> list[ModuleWarmup]:
     """Warm up every module in ``modules`` (default: the core's and the plug-ins' kernel modules), in order.
 
-    ``on_result`` is called after each module (e.g. to print progress). Returns one
+    ``on_result`` is called after each module (e.g. to print progress). ``runtime``: only what a run
+    uses (see :func:`warmup_module`; ``lite-vo warmup`` compiles everything). Returns one
     :class:`ModuleWarmup` per module; check ``status == "error"`` for failures.
     """
     results = []
     for module in (all_kernel_modules() if modules is None else modules):
-        res = warmup_module(module)
+        res = warmup_module(module, runtime)
         results.append(res)
         if on_result is not None:
             on_result(res)

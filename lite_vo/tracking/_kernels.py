@@ -741,8 +741,10 @@ def extract_points(valid, idepth, idepth_var, img, cam, pts, xs, ys):
     return n
 
 
-def warmup() -> None:
-    """Compile (or load from the cache) every kernel of this module on tiny inputs."""
+def warmup(runtime: bool = False) -> None:
+    """Compile (or load from the cache) every kernel of this module on tiny inputs. ``runtime``: only
+    what a run calls (the read-only points of a TrackingReference; not the standalone inner helpers,
+    which are compiled into their callers, nor the writable-points signatures the tests use)."""
     rng = np.random.default_rng(0)
     n = 16
     pts = np.empty((n, PTS_COLS), np.float32)
@@ -769,10 +771,11 @@ def warmup() -> None:
     # TrackingReference hands the kernels read-only point arrays: numba types those separately
     pts_ro = pts.copy()
     pts_ro.flags.writeable = False
-    for p in (pts, pts_ro):
+    for p in ((pts_ro,) if runtime else (pts, pts_ro)):
         for enabled in (0.0, 1.0):
             prm[TP_AFF_ENABLED] = enabled
-            accumulate(p, img3, INTERP_BILINEAR, T, cam, prm, 1.0, 0.0, buf, acc)
+            if not runtime:
+                accumulate(p, img3, INTERP_BILINEAR, T, cam, prm, 1.0, 0.0, buf, acc)
             lm_level(p, img3, INTERP_BSPLINE, T, cam, prm, 3, aff, buf, T_out, acc, aff_out, stats)
             img = img3[:, :, 0].copy()
             img_ro = img.copy()
@@ -783,12 +786,14 @@ def warmup() -> None:
                 track_level(p, im, INTERP_BSPLINE, 14, img3[:, :, :1].copy(), T.copy(), cam, prm, 3, aff.copy(),
                             buf, T_out, acc, aff_out, stats)
     residual_spread(np.arange(40.0), 40)
+    m = np.ones((4, 4), np.bool_)
+    one = np.ones((4, 4), np.float32)
+    extract_points(m, one, one, one, cam, np.empty((16, PTS_COLS), np.float32),
+                   np.empty(16, np.float32), np.empty(16, np.float32))
+    if runtime:
+        return
     unpack_normal_equations(acc, np.empty((NP, NP)), np.empty(NP))
     x = np.zeros(NP)
     solve_spd(np.eye(NP), np.ones(NP), x, NP, 1e-12)
     E = np.empty((4, 4))
     exp_se3_nb(np.full(6, 0.1), E)
-    m = np.ones((4, 4), np.bool_)
-    one = np.ones((4, 4), np.float32)
-    extract_points(m, one, one, one, cam, np.empty((16, PTS_COLS), np.float32),
-                   np.empty(16, np.float32), np.empty(16, np.float32))
