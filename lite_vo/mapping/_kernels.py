@@ -2,11 +2,12 @@
 
 Owns: image gradients for mapping, the epipolar line search (`line_stereo`), the stereo
 observation pass over the whole map (`observe_kernel`), forward-warping propagation
-(`propagate_kernel`), regularisation (`regularize_kernel`) and hole filling (`fill_kernel`).
-Every threshold is an argument: one float64 parameter vector ``prm`` built once per configuration
+(`propagate_kernel`), regularisation (`regularize_kernel`), hole filling (`fill_kernel`), the
+outcome counts (`count_codes`), the published map (`masked_map`) and the allocators of the kernels'
+scratch (`propagation_work`, `fill_work`, `regularize_work`: made once per Mapper). Every threshold is an argument: one float64 parameter vector ``prm`` built once per configuration
 by ``lite_vo.mapping.mapper.mapping_params`` (the ``P_*`` constants below are only indices into
 it). Kernels never allocate per pixel; the :class:`~lite_vo.mapping.mapper.Mapper` validates inputs
-and allocates outputs.
+and allocates outputs and scratch.
 
 Map state (:class:`MapState`, a namedtuple of HxW arrays, one entry per pixel of the current frame):
 ``idepth, idepth_var`` (float32, the filter state), ``idepth_s, var_s`` (float32, regularised

@@ -171,8 +171,10 @@ class Mapper:
     Owned by one thread (the mapping thread). Members:
     ``config``, ``intrinsics`` (mapping resolution), ``state`` (per-pixel arrays),
     ``_cur`` (the frame the map lives in, with its gradients), ``_buffer`` (past frames, oldest
-    first, images in the ring ``_buf_images``), ``_rng`` (seeded, random initialisation),
-    ``measure_cpu`` (set it to also record each stage's thread CPU time in ``stage_cpu_ms``).
+    first, images in the ring ``_buf_images``, inverse poses in ``_buf_T_ref_world``), ``_rng`` (seeded,
+    random initialisation), the kernels' scratch (``_spare``: the other map of the double buffer,
+    ``_prop_work``, ``_fill_work``, ``_reg_work``, ``_status``), ``measure_cpu`` (set it to also record
+    each stage's thread CPU time in ``stage_cpu_ms``).
     """
 
     def __init__(self, config: MappingConfig, intrinsics0: PinholeIntrinsics, seed: int = 0):
