@@ -133,16 +133,6 @@ def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b):
     return acc
 
 
-def residual_spread(r, n):
-    """numpy twin of ``kernels.residual_spread``: of every 4th of ``r[:n]``, (1.4826 * median absolute
-    deviation, mean absolute deviation from the median); NaN, NaN when fewer than 8."""
-    q = np.asarray(r[:n])[::4]
-    if q.size < 8:
-        return float("nan"), float("nan")
-    dev = np.abs(q - np.median(q))
-    return float(1.4826 * np.median(dev)), float(np.mean(dev))
-
-
 def track_level(pts, img, interp, img3, T, cam, prm, max_iter, aff, buf, T_out, acc, aff_out, stats):
     """Twin of ``kernels.track_level`` from the public pieces: the image module's stack functions,
     ``kernels.lm_level``, then the pose and brightness handed on in numpy (``T`` and ``aff`` in place)."""

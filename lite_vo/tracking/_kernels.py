@@ -9,7 +9,6 @@ Owns the hot loops of :mod:`lite_vo.tracking`:
   (calls :func:`accumulate` once per iteration; no Python between iterations).
 * :func:`track_level` - one level of a frame in one call: the new image's interpolation stack, then
   :func:`lm_level`, then the pose and brightness handed on to the next level.
-* :func:`residual_spread` - the finest level's robust residual std and mean absolute deviation.
 * small helpers: :func:`exp_se3_nb`, :func:`solve_spd` (Cholesky), pose composition.
 
 Affine brightness (thesis 6.3.3, DSO): ``I_new(warp(p)) = a * I_ref(p) + b`` with ``a = exp(alpha)``;
@@ -587,139 +586,6 @@ def track_level(pts, img, interp, horizon, img3, T, cam, prm, max_iter, aff, buf
 
 
 @njit(cache=True, nogil=True, fastmath=False)
-def _block_sum(a, lo, n):
-    """``sum(a[lo:lo + n])`` for ``n <= 128`` as numpy's pairwise summation adds one block: eight
-    interleaved partial sums (fewer than 8 values: one after the other)."""
-    if n < 8:
-        res = 0.0
-        for i in range(lo, lo + n):
-            res += a[i]
-        return res
-    r0 = a[lo]; r1 = a[lo + 1]; r2 = a[lo + 2]; r3 = a[lo + 3]
-    r4 = a[lo + 4]; r5 = a[lo + 5]; r6 = a[lo + 6]; r7 = a[lo + 7]
-    i = 8
-    while i < n - n % 8:
-        r0 += a[lo + i]; r1 += a[lo + i + 1]; r2 += a[lo + i + 2]; r3 += a[lo + i + 3]
-        r4 += a[lo + i + 4]; r5 += a[lo + i + 5]; r6 += a[lo + i + 6]; r7 += a[lo + i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@njit(cache=True, nogil=True, fastmath=False)
-def _pairwise_sum(a, n):
-    """``sum(a[:n])`` added in numpy's pairwise order (``np.add.reduce`` of a contiguous float64 array:
-    halves, split at a multiple of 8, until blocks of at most 128, see :func:`_block_sum`): the same value
-    bit for bit. numpy recurses; this walks the same tree with an explicit stack (numba's on-disk cache
-    cannot load recursive functions)."""
-    los = np.empty(64, np.int64)
-    cnts = np.empty(64, np.int64)
-    left_done = np.zeros(64, np.bool_)
-    left = np.empty(64)
-    sp = 0
-    los[0] = 0
-    cnts[0] = n
-    while True:
-        cnt = cnts[sp]
-        if cnt > 128:                                 # descend into the left half
-            n2 = cnt // 2
-            n2 -= n2 % 8
-            left_done[sp] = False
-            los[sp + 1] = los[sp]
-            cnts[sp + 1] = n2
-            sp += 1
-            continue
-        v = _block_sum(a, los[sp], cnt)
-        sp -= 1
-        while sp >= 0:                                # hand the sum up the tree
-            if not left_done[sp]:                     # a left half: the right half comes next
-                left[sp] = v
-                left_done[sp] = True
-                n2 = cnts[sp] // 2
-                n2 -= n2 % 8
-                los[sp + 1] = los[sp] + n2
-                cnts[sp + 1] = cnts[sp] - n2
-                sp += 1
-                break
-            v = left[sp] + v                          # a right half: the node's sum is complete
-            sp -= 1
-        if sp < 0:
-            return v
-
-
-@njit(cache=True, nogil=True, fastmath=False)
-def _select(a, k):
-    """Reorder ``a`` in place so that ``a[k]`` is its ``k``-th smallest value and ``a[:k]`` holds values
-    not above it (quickselect, median-of-three pivots; finite values); returns ``a[k]``."""
-    lo = 0
-    hi = a.shape[0] - 1
-    while hi > lo:
-        mid = (lo + hi) >> 1
-        if a[mid] < a[lo]:
-            a[mid], a[lo] = a[lo], a[mid]
-        if a[hi] < a[lo]:
-            a[hi], a[lo] = a[lo], a[hi]
-        if a[hi] < a[mid]:
-            a[hi], a[mid] = a[mid], a[hi]
-        pivot = a[mid]
-        i = lo
-        j = hi
-        while i <= j:
-            while a[i] < pivot:
-                i += 1
-            while a[j] > pivot:
-                j -= 1
-            if i <= j:
-                a[i], a[j] = a[j], a[i]
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
-        else:
-            break                                     # j < k < i: a[k] equals the pivot
-    return a[k]
-
-
-@njit(cache=True, nogil=True, fastmath=False)
-def _median(a):
-    """``np.median`` of the finite values ``a`` (reordered in place): the middle value, or the two middle
-    ones summed and halved."""
-    k = a.shape[0] // 2
-    upper = _select(a, k)
-    if a.shape[0] % 2:
-        return upper
-    lower = a[0]
-    for i in range(1, k):
-        if a[i] > lower:
-            lower = a[i]
-    return (lower + upper) / 2
-
-
-@njit(cache=True, nogil=True, fastmath=False)
-def residual_spread(r, n):
-    """Of every 4th of the finite residuals ``r[:n]``: ``(1.4826 * median absolute deviation, mean absolute
-    deviation from the median)``; both ignore a common offset (a global brightness change). NaN, NaN
-    when fewer than 8. The same values as ``np.median`` / ``np.mean`` of the numpy expressions."""
-    m = (n + 3) // 4
-    if m < 8:
-        return np.nan, np.nan
-    s = np.empty(m)
-    for i in range(m):
-        s[i] = r[4 * i]
-    med = _median(s)
-    dev = np.empty(m)
-    for i in range(m):
-        dev[i] = abs(r[4 * i] - med)
-    mean = _pairwise_sum(dev, m) / m
-    return 1.4826 * _median(dev), mean
-
-
-@njit(cache=True, nogil=True, fastmath=False)
 def extract_points(valid, idepth, idepth_var, img, cam, pts, xs, ys):
     """Fill the packed point array (layout ``PTS_COLS``) and pixel coordinates of the valid pixels,
     row-major order; returns the count (``pts`` must have room for every valid pixel)."""
@@ -785,7 +651,6 @@ def warmup(runtime: bool = False) -> None:
                             aff_out, stats)
                 track_level(p, im, INTERP_BSPLINE, 14, img3[:, :, :1].copy(), T.copy(), cam, prm, 3, aff.copy(),
                             buf, T_out, acc, aff_out, stats)
-    residual_spread(np.arange(40.0), 40)
     m = np.ones((4, 4), np.bool_)
     one = np.ones((4, 4), np.float32)
     extract_points(m, one, one, one, cam, np.empty((16, PTS_COLS), np.float32),
