@@ -11,12 +11,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .config import VOConfig
+from .errors import InputError
 from .io import prepare_output_dir
 from .session import Session
 from .sinks import MapSink, ProgressSink, RunInfoSink, TrajectoryExportSink, TrajectorySink
 
 RUN_OUTPUTS = ("trajectory.txt", "timing.json", "run.json", "map.ply", "depth_accuracy.json", "depth_error.png",
-               "trajectory_kitti.txt", "times.txt", "trajectory.png")
+               "trajectory_kitti.txt", "times.txt", "trajectory.png", "vignette.png", "vignette.json")
 
 
 @dataclass
@@ -34,7 +35,7 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
                  depth_source: str = "filter", pose_source: str = "estimate", max_frames: int | None = None,
                  start_frame: int = 0, quiet: bool = True, sinks=(), profile_name: str | None = None,
                  max_bad_frames: int = 10, calib=None, kitti: bool = False, plot: bool = False,
-                 photometric=None, map_voxel: float = 0.0) -> RunResult:
+                 photometric=None, map_voxel: float = 0.0, estimate_vignette: bool = False) -> RunResult:
     """Run the visual odometry over ``sequence`` (a path, camera index or opened sequence).
 
     Writes the contract files into ``out_dir`` (when given) as the run goes; ``sinks`` are further
@@ -42,9 +43,13 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
     ground truth (mapping only); ``depth_source="images"`` tracks against the depth images
     (tracking only). ``kitti``: also ``trajectory_kitti.txt`` (+ ``times.txt``); ``plot``: also
     ``trajectory.png`` (against the ground truth when the sequence has it); ``map_voxel > 0``: ``map.ply``
-    with one point per voxel of that size. Ctrl-C, SIGTERM and errors still finish the files (status ``interrupted at
+    with one point per voxel of that size; ``estimate_vignette``: fit the camera's vignetting to the run's maps
+    and write ``vignette.png`` / ``vignette.json`` (DSO's format: the folder then works as ``photometric``
+    for the next run; :mod:`lite_vo.vignette`). Ctrl-C, SIGTERM and errors still finish the files (status ``interrupted at
     frame N`` or ``failed: ...``) and are then re-raised.
     """
+    if estimate_vignette and out_dir is None:
+        raise InputError("estimating the vignette needs an output folder to write vignette.png into")
     if plot:
         from .plots import require_matplotlib
         require_matplotlib()                  # before the run, not after it
@@ -62,6 +67,10 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
             own.append(TrajectoryExportSink(trajectory, out / "trajectory_kitti.txt" if kitti else None,
                                             out / "trajectory.png" if plot else None,
                                             session.sequence.groundtruth))
+        if estimate_vignette:
+            from .vignette import VignetteSink
+            given = session.photometric.vignette if session.photometric is not None else None
+            own.append(VignetteSink(out, session.sequence.camera, given=given))
     if not quiet:
         own.append(ProgressSink())
     session.sinks = own + list(sinks)

@@ -34,6 +34,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--photometric", type=Path, default=None,
                    help="folder with a photometric calibration in DSO's format (pcalib.txt, vignette.png; exposure "
                         "times from times.txt); such files beside calib.txt are used without this option")
+    p.add_argument("--estimate-vignette", action="store_true",
+                   help="fit the camera's vignetting (darker corners) to this run's maps and write vignette.png + "
+                        "vignette.json into the output folder; pass that folder as --photometric to later runs")
     p.add_argument("--topic", default=None, help="image topic of a ROS bag (needed when it has several)")
     p.add_argument("--format", choices=("tum", "kitti"), default="tum",
                    help="kitti: also write trajectory_kitti.txt (+ times.txt) for KITTI tables (trajectory.txt stays TUM)")
@@ -75,7 +78,7 @@ def run(args) -> int:
                        max_frames=args.max_frames, start_frame=args.start_frame, quiet=args.quiet,
                        profile_name=args.profile, max_bad_frames=args.max_bad_frames,
                        kitti=args.format == "kitti", plot=args.plot, photometric=args.photometric, sinks=sinks,
-                       map_voxel=args.map_voxel)
+                       map_voxel=args.map_voxel, estimate_vignette=args.estimate_vignette)
     c = res.info["frames"]
     skipped = f", {c['skipped']} unreadable skipped" if c.get("skipped") else ""
     later = c.get("posed", c["tracked"]) - c["tracked"]
@@ -87,5 +90,14 @@ def run(args) -> int:
     if acc:
         msg += (f"\n  depth: density {100 * acc['density']:.1f}%, median rel. error "
                 f"{100 * acc['median_abs_rel_error']:.2f}%, within 10% {100 * acc['within_10pct']:.1f}%")
+    if args.estimate_vignette:
+        vj = out / "vignette.json"
+        if vj.exists():
+            import json
+            v = json.loads(vj.read_text())
+            msg += (f"\n  vignette: {100 * v['corner']:.1f} % (+- {100 * v['corner_std']:.1f}) of the centre's brightness in "
+                    f"the corners, from {v['pairs']} pairs of maps -> {out / 'vignette.png'} (use --photometric {out})")
+        else:
+            msg += "\n  vignette: not estimated (too few pairs of maps; see the log)"
     print(msg)
     return 0 if not res.status.startswith("failed") else 3

@@ -1,0 +1,284 @@
+"""Vignetting estimated from a run (self-calibration): ``lite-vo run ... --estimate-vignette``.
+
+A camera darkens its image towards the corners (``I = V(x) * E`` for the irradiance ``E``). When
+the camera moves, one scene point is seen at different distances from the image centre, so the
+ratio of its intensities in two frames carries ``V(u) / V(p)``. The VO's own maps give these
+correspondences for free: every pixel ``p`` of a published semi-dense map has an inverse depth,
+so it lands at ``u`` in the next published map's frame (the same correspondences the depth
+filter's propagation uses). Over a run, the points cross the image at every radius.
+
+Model (radial about the image centre, as the vignette of most lenses; ``rho`` = distance from the
+centre over the half diagonal, so 1 in the corners)::
+
+    V(rho) = 1 + k1 rho^2 + k2 rho^4 + k3 rho^6
+    I_new(u) = a * V(u) / V(p) * I_old(p) + b        (a, b per pair of maps: exposure changes)
+
+Fitted by alternating the per-pair ``(a, b)`` (weighted linear least squares) with Gauss-Newton
+steps on ``k`` (all pairs together), Huber-weighted, each residual weighted by the intensity
+gradient at ``u`` (a sub-pixel error of the pose or the depth moves an edge's intensity a lot).
+The result is written in DSO's format (``vignette.png``, 16 bit, maximum 1, at the camera's native
+resolution), so ``lite-vo run ... --photometric DIR`` corrects every image with it on the next run.
+
+numpy only; cv2 for the PNG.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .session import OutputSink
+
+log = logging.getLogger(__name__)
+
+#: at most this many correspondences are kept from one pair of maps (evenly spaced)
+MAX_POINTS_PER_PAIR = 3000
+#: a pair of maps this many frames apart or more is not used (re-initialisation, relocalisation)
+MAX_FRAME_GAP = 12
+#: fewer correspondences than this in a pair: the pair is skipped
+MIN_POINTS_PER_PAIR = 200
+#: intensities at or above this are clipped (not proportional to the irradiance)
+SATURATION = 250.0
+#: std of the pixel position error (px at map resolution) that weights each residual by its gradient
+POSITION_SIGMA_PX = 0.5
+#: std of the intensity noise (grey levels) in the same weights
+INTENSITY_SIGMA = 3.0
+
+
+def radius2(x: np.ndarray, y: np.ndarray, width: int, height: int) -> np.ndarray:
+    """``rho^2``: squared distance from the image centre over the squared half diagonal."""
+    cx, cy = 0.5 * (width - 1), 0.5 * (height - 1)
+    return ((x - cx) ** 2 + (y - cy) ** 2) / (cx * cx + cy * cy)
+
+
+def vignette_of(k: np.ndarray, r2: np.ndarray) -> np.ndarray:
+    """``V = 1 + k1 rho^2 + k2 rho^4 + k3 rho^6`` at ``rho^2 = r2``."""
+    k1, k2, k3 = (float(v) for v in k)
+    return 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+
+
+def _basis(r2: np.ndarray) -> np.ndarray:
+    return np.stack([r2, r2 * r2, r2 * r2 * r2], axis=-1)
+
+
+def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    ix = np.floor(x).astype(np.int64)
+    iy = np.floor(y).astype(np.int64)
+    dx, dy = x - ix, y - iy
+    a, b = img[iy, ix], img[iy, ix + 1]
+    c, d = img[iy + 1, ix], img[iy + 1, ix + 1]
+    return (1 - dx) * (1 - dy) * a + dx * (1 - dy) * b + (1 - dx) * dy * c + dx * dy * d
+
+
+@dataclass
+class PairSamples:
+    """Correspondences between two published maps (map-resolution pixels)."""
+    r2_old: np.ndarray
+    r2_new: np.ndarray
+    i_old: np.ndarray
+    i_new: np.ndarray
+    weight: np.ndarray
+
+
+def correspondences(old, new, max_points: int = MAX_POINTS_PER_PAIR) -> PairSamples | None:
+    """The pixels of the map ``old`` (a :class:`~lite_vo.session.PublishedMap`) projected into the
+    frame of the map ``new`` with their intensities in both images, or None when the pair is
+    unusable (too far apart in frames, different image sizes, too few points)."""
+    if not 0 < new.frame_index - old.frame_index < MAX_FRAME_GAP:
+        return None
+    h, w = old.image.shape
+    if new.image.shape != (h, w):
+        return None
+    ok = old.valid & (old.idepth_raw > 1e-6)
+    v, u = np.nonzero(ok)
+    if len(u) < MIN_POINTS_PER_PAIR:
+        return None
+    step = max(1, len(u) // max_points)
+    v, u = v[::step], u[::step]
+    cam = old.camera
+    d = old.idepth_raw[v, u].astype(np.float64)
+    rays = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones(len(u))], axis=1)
+    T = np.linalg.inv(np.asarray(new.T_world_cam, np.float64)) @ np.asarray(old.T_world_cam, np.float64)
+    q = rays @ T[:3, :3].T + d[:, None] * T[:3, 3]          # = (R ray / d + t) * d: same direction
+    ok = q[:, 2] > 1e-9
+    q, v, u = q[ok], v[ok], u[ok]
+    c2 = new.camera
+    un = c2.fx * q[:, 0] / q[:, 2] + c2.cx
+    vn = c2.fy * q[:, 1] / q[:, 2] + c2.cy
+    inside = (un >= 1) & (vn >= 1) & (un < w - 2) & (vn < h - 2)
+    if int(inside.sum()) < MIN_POINTS_PER_PAIR:
+        return None
+    u, v, un, vn = u[inside], v[inside], un[inside], vn[inside]
+    img_new = np.asarray(new.image, np.float64)
+    i_old = np.asarray(old.image, np.float64)[v, u]
+    i_new = _bilinear(img_new, un, vn)
+    gx = 0.5 * (_bilinear(img_new, un + 1, vn) - _bilinear(img_new, un - 1, vn))
+    gy = 0.5 * (_bilinear(img_new, un, vn + 1) - _bilinear(img_new, un, vn - 1))
+    keep = (i_old < SATURATION) & (i_new < SATURATION) & (i_old > 2.0) & (i_new > 2.0)
+    if int(keep.sum()) < MIN_POINTS_PER_PAIR:
+        return None
+    weight = 1.0 / (INTENSITY_SIGMA ** 2 + POSITION_SIGMA_PX ** 2 * (gx * gx + gy * gy))
+    return PairSamples(radius2(u.astype(np.float64), v.astype(np.float64), w, h)[keep],
+                       radius2(un, vn, w, h)[keep], i_old[keep], i_new[keep], weight[keep])
+
+
+@dataclass
+class VignetteFit:
+    """The fitted radial vignette and how well the data constrained it."""
+    k: np.ndarray                               # (k1, k2, k3)
+    pairs: int                                  # pairs of maps used
+    samples: int                                # correspondences used
+    residual_rms: float                         # weighted-inlier RMS of the intensity residual (grey levels)
+    corner: float                               # V at the image corners (rho = 1), relative to the centre
+    corner_std: float                           # its standard deviation from the fit's covariance
+    iterations: int
+    width: int                                  # map resolution the fit was made at
+    height: int
+    history: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {"model": "V = 1 + k1 rho^2 + k2 rho^4 + k3 rho^6, rho = distance from the image centre / half diagonal",
+                "k": [float(v) for v in self.k], "corner": self.corner, "corner_std": self.corner_std,
+                "pairs": self.pairs, "samples": self.samples, "residual_rms": self.residual_rms,
+                "iterations": self.iterations, "fit_resolution": [self.width, self.height]}
+
+
+def fit_vignette(pairs: list[PairSamples], width: int, height: int, iterations: int = 30,
+                 huber: float = 2.0) -> VignetteFit:
+    """Fit ``k`` to the correspondences of several pairs of maps (see the module docstring).
+
+    Raises :class:`InputError` when there are not enough pairs (a run too short or hardly moving)."""
+    pairs = [p for p in pairs if p is not None and len(p.i_old) >= MIN_POINTS_PER_PAIR]
+    if len(pairs) < 3:
+        raise InputError(f"vignette estimate: only {len(pairs)} usable pairs of maps (at least 3 needed: "
+                         "a longer run, or one that moves the camera)")
+    pid = np.concatenate([np.full(len(p.i_old), i) for i, p in enumerate(pairs)])
+    r2o = np.concatenate([p.r2_old for p in pairs])
+    r2n = np.concatenate([p.r2_new for p in pairs])
+    io = np.concatenate([p.i_old for p in pairs])
+    inew = np.concatenate([p.i_new for p in pairs])
+    w0 = np.concatenate([p.weight for p in pairs])
+    bo, bn = _basis(r2o), _basis(r2n)
+    n = len(pairs)
+    k = np.zeros(3)
+    a = np.ones(n)
+    b = np.zeros(n)
+    wr = np.ones_like(io)
+    history = []
+    H = np.eye(3)
+    it = 0
+    for it in range(1, iterations + 1):
+        vo, vn = 1.0 + bo @ k, 1.0 + bn @ k
+        ratio = vn / vo
+        x = ratio * io
+        # per pair: (a, b) by weighted least squares of inew ~ a x + b
+        w = w0 * wr
+        sw = np.bincount(pid, w, n)
+        sx = np.bincount(pid, w * x, n)
+        sy = np.bincount(pid, w * inew, n)
+        sxx = np.bincount(pid, w * x * x, n)
+        sxy = np.bincount(pid, w * x * inew, n)
+        det = sw * sxx - sx * sx
+        good = det > 1e-12 * np.maximum(sw * sxx, 1e-300)
+        a = np.where(good, (sw * sxy - sx * sy) / np.where(good, det, 1.0), 1.0)
+        b = np.where(good, (sy - a * sx) / np.maximum(sw, 1e-300), 0.0)
+        r = inew - a[pid] * x - b[pid]
+        # Huber weights: a residual beyond ``huber`` times its expected spread (1 / sqrt(w0)) counts less
+        scale = huber / np.sqrt(w0)
+        wr = np.where(np.abs(r) <= scale, 1.0, scale / np.maximum(np.abs(r), 1e-12))
+        w = w0 * wr
+        # Gauss-Newton on k: d r / d k = -a x (phi(u) / V(u) - phi(p) / V(p))
+        J = -(a[pid] * x)[:, None] * (bn / vn[:, None] - bo / vo[:, None])
+        H = J.T @ (J * w[:, None])
+        g = J.T @ (w * r)
+        step = np.linalg.solve(H + 1e-9 * np.trace(H) * np.eye(3), -g)
+        k = k + step
+        history.append(float(np.sqrt(np.sum(w * r * r) / np.sum(w))))
+        if np.max(np.abs(step)) < 1e-6:
+            break
+    vo, vn = 1.0 + bo @ k, 1.0 + bn @ k
+    r = inew - a[pid] * (vn / vo) * io - b[pid]
+    inl = np.abs(r) <= huber / np.sqrt(w0)
+    rms = float(np.sqrt(np.mean(r[inl] ** 2))) if inl.any() else float("nan")
+    # covariance of k from the weighted normal equations, scaled by the residual variance per weight
+    sigma2 = float(np.sum(w * r * r) / max(len(r) - 3 - 2 * n, 1))
+    cov = np.linalg.pinv(H) * sigma2
+    grad_corner = np.ones(3)                     # d V(1) / d k
+    corner = float(vignette_of(k, np.array(1.0)))
+    corner_std = float(np.sqrt(max(grad_corner @ cov @ grad_corner, 0.0)))
+    return VignetteFit(k, n, len(io), rms, corner, corner_std, it, width, height, history)
+
+
+def vignette_image(fit: VignetteFit, camera, map_camera) -> np.ndarray:
+    """The vignette at the camera's native resolution (float, maximum 1), for DSO's
+    ``vignette.png``. The fit lives in the rectified map image: each native pixel is undistorted
+    through the lens model (``camera``: :class:`~lite_vo.camera.Camera`) and projected with the map's
+    pinhole intrinsics (``map_camera``: :class:`~lite_vo.camera.PinholeIntrinsics`, the published maps')."""
+    intr = camera.intrinsics
+    W, H = intr.width, intr.height
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
+    rays = camera.unproject(np.stack([xs.ravel(), ys.ravel()], axis=-1))          # undistorted normalised
+    ux = map_camera.fx * rays[:, 0] + map_camera.cx
+    uy = map_camera.fy * rays[:, 1] + map_camera.cy
+    r2 = radius2(ux, uy, fit.width, fit.height).reshape(H, W)
+    v = vignette_of(fit.k, np.where(np.isfinite(r2), r2, 1.0))
+    v = np.clip(v, 1e-3, None)
+    return v / v.max()
+
+
+def write_vignette(folder: Path, fit: VignetteFit, camera, map_camera, given: np.ndarray | None = None) -> Path:
+    """``folder/vignette.png`` (16 bit, maximum 65535 = 1) and ``folder/vignette.json`` (the fit);
+    ``given``: a vignette the images were already corrected with (multiplied in)."""
+    import cv2
+    folder = Path(folder)
+    v = vignette_image(fit, camera, map_camera)
+    if given is not None:
+        v = v * np.asarray(given, np.float64)
+        v = v / v.max()
+    path = folder / "vignette.png"
+    if not cv2.imwrite(str(path), np.round(v * 65535.0).astype(np.uint16)):
+        raise InputError(f"{path}: could not write the vignette image")
+    (folder / "vignette.json").write_text(json.dumps(fit.to_dict(), indent=2) + "\n")
+    return path
+
+
+class VignetteSink(OutputSink):
+    """Collects the correspondences of consecutive published maps during a run and, at the end,
+    fits the vignette and writes ``vignette.png`` / ``vignette.json`` into ``folder`` (a run that
+    gives too little data writes nothing and says why in the log). ``camera``: the sequence's
+    :class:`~lite_vo.camera.Camera` (the PNG is at its native resolution). ``given``: the vignette the
+    run already corrected with (native resolution), if any: the fit is then what was left, and the
+    written vignette is the product of both."""
+
+    def __init__(self, folder, camera, given: np.ndarray | None = None) -> None:
+        self.folder = Path(folder)
+        self.camera = camera
+        self.given = given
+        self.pairs: list[PairSamples] = []
+        self.previous = None
+        self.fit: VignetteFit | None = None
+        self.error: str | None = None
+
+    def on_map(self, published) -> None:
+        if self.previous is not None:
+            p = correspondences(self.previous, published)
+            if p is not None:
+                self.pairs.append(p)
+        self.previous = published
+
+    def on_finish(self, end) -> None:
+        shape = self.previous.image.shape if self.previous is not None else (0, 0)
+        try:
+            self.fit = fit_vignette(self.pairs, shape[1], shape[0])
+        except InputError as err:
+            self.error = str(err)
+            log.warning("%s; no vignette.png written", err)
+            return
+        path = write_vignette(self.folder, self.fit, self.camera, self.previous.camera, self.given)
+        f = self.fit
+        log.info("vignette: %.1f %% +- %.1f at the corners (%d pairs of maps, %d points) -> %s",
+                 100 * f.corner, 100 * f.corner_std, f.pairs, f.samples, path)
