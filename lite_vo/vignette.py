@@ -7,8 +7,8 @@ correspondences for free: every pixel ``p`` of a published semi-dense map has an
 so it lands at ``u`` in the next published map's frame (the same correspondences the depth
 filter's propagation uses). Over a run, the points cross the image at every radius.
 
-Model (radial about the image centre, as the vignette of most lenses; ``rho`` = distance from the
-centre over the half diagonal, so 1 in the corners)::
+Model (radial about the principal point, the optical axis, as the vignette of most lenses; ``rho`` =
+distance from it over the distance to the farthest image corner, so 1 there)::
 
     V(rho) = 1 + k1 rho^2 + k2 rho^4 + k3 rho^6
     I_new(u) = a * V(u) / V(p) * I_old(p) + b        (a, b per pair of maps: exposure changes)
@@ -49,10 +49,18 @@ POSITION_SIGMA_PX = 0.5
 INTENSITY_SIGMA = 3.0
 
 
-def radius2(x: np.ndarray, y: np.ndarray, width: int, height: int) -> np.ndarray:
-    """``rho^2``: squared distance from the image centre over the squared half diagonal."""
-    cx, cy = 0.5 * (width - 1), 0.5 * (height - 1)
-    return ((x - cx) ** 2 + (y - cy) ** 2) / (cx * cx + cy * cy)
+def radial_frame(camera) -> tuple[float, float, float]:
+    """``(cx, cy, r2max)`` of a pinhole camera (:class:`~lite_vo.camera.PinholeIntrinsics`): the
+    principal point and the squared distance from it to the farthest image corner."""
+    cx, cy = float(camera.cx), float(camera.cy)
+    xs, ys = (0.0, camera.width - 1.0), (0.0, camera.height - 1.0)
+    return cx, cy, max((x - cx) ** 2 + (y - cy) ** 2 for x in xs for y in ys)
+
+
+def radius2(x: np.ndarray, y: np.ndarray, frame: tuple[float, float, float]) -> np.ndarray:
+    """``rho^2`` of pixels in the :func:`radial_frame` ``frame``."""
+    cx, cy, r2max = frame
+    return ((x - cx) ** 2 + (y - cy) ** 2) / r2max
 
 
 def vignette_of(k: np.ndarray, r2: np.ndarray) -> np.ndarray:
@@ -122,8 +130,9 @@ def correspondences(old, new, max_points: int = MAX_POINTS_PER_PAIR) -> PairSamp
     if int(keep.sum()) < MIN_POINTS_PER_PAIR:
         return None
     weight = 1.0 / (INTENSITY_SIGMA ** 2 + POSITION_SIGMA_PX ** 2 * (gx * gx + gy * gy))
-    return PairSamples(radius2(u.astype(np.float64), v.astype(np.float64), w, h)[keep],
-                       radius2(un, vn, w, h)[keep], i_old[keep], i_new[keep], weight[keep])
+    frame = radial_frame(old.camera)
+    return PairSamples(radius2(u.astype(np.float64), v.astype(np.float64), frame)[keep],
+                       radius2(un, vn, frame)[keep], i_old[keep], i_new[keep], weight[keep])
 
 
 @dataclass
@@ -136,18 +145,18 @@ class VignetteFit:
     corner: float                               # V at the image corners (rho = 1), relative to the centre
     corner_std: float                           # its standard deviation from the fit's covariance
     iterations: int
-    width: int                                  # map resolution the fit was made at
-    height: int
+    frame: tuple                                # radial_frame of the map camera the fit was made in
     history: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {"model": "V = 1 + k1 rho^2 + k2 rho^4 + k3 rho^6, rho = distance from the image centre / half diagonal",
+        return {"model": "V = 1 + k1 rho^2 + k2 rho^4 + k3 rho^6, rho = distance from the principal point / "
+                         "its distance to the farthest image corner (map image)",
                 "k": [float(v) for v in self.k], "corner": self.corner, "corner_std": self.corner_std,
                 "pairs": self.pairs, "samples": self.samples, "residual_rms": self.residual_rms,
-                "iterations": self.iterations, "fit_resolution": [self.width, self.height]}
+                "iterations": self.iterations, "centre": list(self.frame[:2]), "corner_radius": self.frame[2] ** 0.5}
 
 
-def fit_vignette(pairs: list[PairSamples], width: int, height: int, iterations: int = 30,
+def fit_vignette(pairs: list[PairSamples], frame: tuple, iterations: int = 30,
                  huber: float = 2.0) -> VignetteFit:
     """Fit ``k`` to the correspondences of several pairs of maps (see the module docstring).
 
@@ -210,7 +219,7 @@ def fit_vignette(pairs: list[PairSamples], width: int, height: int, iterations: 
     grad_corner = np.ones(3)                     # d V(1) / d k
     corner = float(vignette_of(k, np.array(1.0)))
     corner_std = float(np.sqrt(max(grad_corner @ cov @ grad_corner, 0.0)))
-    return VignetteFit(k, n, len(io), rms, corner, corner_std, it, width, height, history)
+    return VignetteFit(k, n, len(io), rms, corner, corner_std, it, tuple(frame), history)
 
 
 def vignette_image(fit: VignetteFit, camera, map_camera) -> np.ndarray:
@@ -224,7 +233,7 @@ def vignette_image(fit: VignetteFit, camera, map_camera) -> np.ndarray:
     rays = camera.unproject(np.stack([xs.ravel(), ys.ravel()], axis=-1))          # undistorted normalised
     ux = map_camera.fx * rays[:, 0] + map_camera.cx
     uy = map_camera.fy * rays[:, 1] + map_camera.cy
-    r2 = radius2(ux, uy, fit.width, fit.height).reshape(H, W)
+    r2 = radius2(ux, uy, fit.frame).reshape(H, W)
     v = vignette_of(fit.k, np.where(np.isfinite(r2), r2, 1.0))
     v = np.clip(v, 1e-3, None)
     return v / v.max()
@@ -271,9 +280,9 @@ class VignetteSink(OutputSink):
         self.previous = published
 
     def on_finish(self, end) -> None:
-        shape = self.previous.image.shape if self.previous is not None else (0, 0)
+        frame = radial_frame(self.previous.camera) if self.previous is not None else (0.0, 0.0, 1.0)
         try:
-            self.fit = fit_vignette(self.pairs, shape[1], shape[0])
+            self.fit = fit_vignette(self.pairs, frame)
         except InputError as err:
             self.error = str(err)
             log.warning("%s; no vignette.png written", err)

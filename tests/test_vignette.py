@@ -14,11 +14,12 @@ from lite_vo.camera import Camera, PinholeIntrinsics
 from lite_vo.errors import InputError
 from lite_vo.photometric import load_photometric
 from lite_vo.session import PublishedMap
-from lite_vo.vignette import (MAX_FRAME_GAP, PairSamples, correspondences, fit_vignette, radius2, vignette_image,
-                              vignette_of, write_vignette)
+from lite_vo.vignette import (MAX_FRAME_GAP, PairSamples, correspondences, fit_vignette, radial_frame, radius2,
+                              vignette_image, vignette_of, write_vignette)
 
 W, H = 320, 240
 MAP_CAM = PinholeIntrinsics(250.0, 250.0, 159.5, 119.5, W, H)     # the map of a 640x480 camera, f = 500
+FRAME = radial_frame(MAP_CAM)
 
 
 def _pairs(k_true, n_pairs=30, n=2000, seed=0, outliers=0.1):
@@ -32,7 +33,7 @@ def _pairs(k_true, n_pairs=30, n=2000, seed=0, outliers=0.1):
         xu, yu = np.clip(x + shift[0], 1, W - 2), np.clip(y + shift[1], 1, H - 2)
         radiance = rng.uniform(20, 200, n)
         a, b = rng.uniform(0.7, 1.3), rng.uniform(-10, 10)
-        r2o, r2n = radius2(x, y, W, H), radius2(xu, yu, W, H)
+        r2o, r2n = radius2(x, y, FRAME), radius2(xu, yu, FRAME)
         i_old = vignette_of(k_true, r2o) * radiance
         i_new = a * vignette_of(k_true, r2n) * radiance + b + rng.normal(0, 3, n)
         bad = rng.random(n) < outliers
@@ -43,7 +44,7 @@ def _pairs(k_true, n_pairs=30, n=2000, seed=0, outliers=0.1):
 
 @pytest.mark.parametrize("k_true, corner", [((-0.5, 0.0, 0.0), 0.5), ((-0.2, -0.2, 0.1), 0.7), ((0.0, 0.0, 0.0), 1.0)])
 def test_fit_recovers_a_known_vignette_despite_exposure_changes_and_outliers(k_true, corner):
-    fit = fit_vignette(_pairs(np.array(k_true)), W, H)
+    fit = fit_vignette(_pairs(np.array(k_true)), FRAME)
     assert abs(fit.corner - corner) < 0.01
     assert fit.corner_std < 0.01
     r2 = np.linspace(0, 1, 11)
@@ -52,9 +53,15 @@ def test_fit_recovers_a_known_vignette_despite_exposure_changes_and_outliers(k_t
     assert 2.0 < fit.residual_rms < 4.0                   # the inliers' noise (3 grey levels), outliers left out
 
 
+def test_radial_frame_is_centred_on_the_principal_point():
+    cx, cy, r2max = radial_frame(PinholeIntrinsics(250.0, 250.0, 100.0, 119.5, W, H))
+    assert (cx, cy) == (100.0, 119.5) and r2max == pytest.approx(219.0 ** 2 + 119.5 ** 2)   # farthest: the right corners
+    assert radius2(np.array([100.0, 319.0]), np.array([119.5, 0.0]), (cx, cy, r2max)) == pytest.approx([0.0, 1.0])
+
+
 def test_fit_needs_enough_pairs():
     with pytest.raises(InputError, match="usable pairs"):
-        fit_vignette(_pairs(np.array([-0.5, 0.0, 0.0]), n_pairs=2), W, H)
+        fit_vignette(_pairs(np.array([-0.5, 0.0, 0.0]), n_pairs=2), FRAME)
 
 
 def _published(index, T_world_cam, image, idepth):
@@ -79,7 +86,7 @@ def test_correspondences_follow_the_geometry_and_skip_unusable_pairs():
     assert p is not None and len(p.i_old) > 1000
     v, u = np.nonzero(np.isfinite(idepth))
     inside = (u - 5 >= 1) & (u - 5 < W - 2) & (v >= 1) & (v < H - 2)
-    np.testing.assert_allclose(np.sort(p.r2_new), np.sort(radius2(u[inside] - 5.0, v[inside] * 1.0, W, H)[
+    np.testing.assert_allclose(np.sort(p.r2_new), np.sort(radius2(u[inside] - 5.0, v[inside] * 1.0, FRAME)[
         (image[v[inside], u[inside]] < 250)]), atol=1e-9)
     np.testing.assert_allclose(p.i_new, p.i_old, atol=1e-3)      # the same scene point, the same brightness
     assert np.all(p.weight > 0) and np.all(p.weight <= 1 / 9.0 + 1e-12)
@@ -92,7 +99,7 @@ def test_correspondences_follow_the_geometry_and_skip_unusable_pairs():
 
 
 def test_vignette_image_at_native_resolution_and_roundtrip_through_dsos_format(tmp_path):
-    fit = fit_vignette(_pairs(np.array([-0.5, 0.0, 0.0])), W, H)
+    fit = fit_vignette(_pairs(np.array([-0.5, 0.0, 0.0])), FRAME)
     cam = Camera.pinhole(500.0, 500.0, 319.5, 239.5, 640, 480)
     v = vignette_image(fit, cam, MAP_CAM)
     assert v.shape == (480, 640) and abs(v.max() - 1.0) < 1e-12
@@ -114,14 +121,14 @@ def test_vignette_image_at_native_resolution_and_roundtrip_through_dsos_format(t
 def test_vignette_image_follows_the_lens_model():
     """With lens distortion a native pixel is undistorted and projected with the map's intrinsics:
     the vignette of a native pixel is the fit's value at that rectified position."""
-    fit = fit_vignette(_pairs(np.array([-0.5, 0.0, 0.0])), W, H)
+    fit = fit_vignette(_pairs(np.array([-0.5, 0.0, 0.0])), FRAME)
     cam = Camera.radtan(500.0, 500.0, 319.5, 239.5, 640, 480, -0.2, 0.05, 0.0, 0.0)
     map_cam = PinholeIntrinsics(230.0, 230.0, 159.5, 119.5, W, H)       # as a rectifier that crops would choose
     v = vignette_image(fit, cam, map_cam)
     peak = vignette_of(fit.k, np.array(0.0))
     for x, y in ((0, 0), (639, 0), (100, 300), (319, 239), (600, 470)):
         ray = cam.unproject(np.array([[x, y]], np.float64))[0]
-        r2 = radius2(map_cam.fx * ray[0] + map_cam.cx, map_cam.fy * ray[1] + map_cam.cy, W, H)
+        r2 = radius2(map_cam.fx * ray[0] + map_cam.cx, map_cam.fy * ray[1] + map_cam.cy, FRAME)
         assert v[y, x] == pytest.approx(vignette_of(fit.k, r2) / peak, abs=1e-5)   # peak: between pixels
     diag = v[np.arange(239, 0, -10), np.arange(319, 0, -(320 // 24))[:24]]
     assert np.all(np.diff(diag) < 0)                     # darker towards the corner
