@@ -156,12 +156,33 @@ class VignetteFit:
                 "iterations": self.iterations, "centre": list(self.frame[:2]), "corner_radius": self.frame[2] ** 0.5}
 
 
+#: a pair whose median normalised residual (no vignette, its own exposure fit) is this many times the
+#: median over all pairs is left out: its points do not correspond (a re-initialised map, a bad pose)
+PAIR_OUTLIER_FACTOR = 3.0
+
+
+def _consistent(pairs: list) -> list:
+    """The pairs (enough points) whose correspondences agree about as well as the others'."""
+    pairs = [p for p in pairs if p is not None and len(p.i_old) >= MIN_POINTS_PER_PAIR]
+    if len(pairs) < 3:
+        return pairs
+    spread = []
+    for p in pairs:
+        A = np.stack([p.i_old, np.ones_like(p.i_old)], axis=1) * np.sqrt(p.weight)[:, None]
+        ab = np.linalg.lstsq(A, p.i_new * np.sqrt(p.weight), rcond=None)[0]
+        spread.append(np.median(np.abs(p.i_new - ab[0] * p.i_old - ab[1]) * np.sqrt(p.weight)))
+    spread = np.array(spread)
+    keep = spread <= PAIR_OUTLIER_FACTOR * np.median(spread)
+    return [p for p, k in zip(pairs, keep) if k]
+
+
 def fit_vignette(pairs: list[PairSamples], frame: tuple, iterations: int = 30,
                  huber: float = 2.0) -> VignetteFit:
     """Fit ``k`` to the correspondences of several pairs of maps (see the module docstring).
 
+    Pairs whose points disagree far more than the others' are left out first (:data:`PAIR_OUTLIER_FACTOR`).
     Raises :class:`InputError` when there are not enough pairs (a run too short or hardly moving)."""
-    pairs = [p for p in pairs if p is not None and len(p.i_old) >= MIN_POINTS_PER_PAIR]
+    pairs = _consistent(pairs)
     if len(pairs) < 3:
         raise InputError(f"vignette estimate: only {len(pairs)} usable pairs of maps (at least 3 needed: "
                          "a longer run, or one that moves the camera)")

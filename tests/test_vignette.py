@@ -59,6 +59,16 @@ def test_radial_frame_is_centred_on_the_principal_point():
     assert radius2(np.array([100.0, 319.0]), np.array([119.5, 0.0]), (cx, cy, r2max)) == pytest.approx([0.0, 1.0])
 
 
+def test_fit_leaves_out_pairs_whose_points_do_not_correspond():
+    """A pair from a re-initialised map (another scale: its points land elsewhere) agrees with nothing."""
+    pairs = _pairs(np.array([-0.5, 0.0, 0.0]))
+    rng = np.random.default_rng(5)
+    for p in pairs[:3]:
+        p.i_new[:] = rng.permutation(p.i_new)
+    fit = fit_vignette(pairs, FRAME)
+    assert fit.pairs == 27 and abs(fit.corner - 0.5) < 0.01
+
+
 def test_fit_needs_enough_pairs():
     with pytest.raises(InputError, match="usable pairs"):
         fit_vignette(_pairs(np.array([-0.5, 0.0, 0.0]), n_pairs=2), FRAME)
