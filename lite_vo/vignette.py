@@ -149,7 +149,7 @@ class VignetteFit:
     history: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {"model": "V = 1 + k1 rho^2 + k2 rho^4 + k3 rho^6, rho = distance from the principal point / "
+        return {"written": True, "model": "V = 1 + k1 rho^2 + k2 rho^4 + k3 rho^6, rho = distance from the principal point / "
                          "its distance to the farthest image corner (map image)",
                 "k": [float(v) for v in self.k], "corner": self.corner, "corner_std": self.corner_std,
                 "pairs": self.pairs, "samples": self.samples, "residual_rms": self.residual_rms,
@@ -243,6 +243,25 @@ def fit_vignette(pairs: list[PairSamples], frame: tuple, iterations: int = 30,
     return VignetteFit(k, n, len(io), rms, corner, corner_std, it, tuple(frame), history)
 
 
+#: an estimate is only written when the corners' brightness is known to this standard deviation ...
+MAX_CORNER_STD = 0.02
+#: ... and lies in this range (a lens darkens its corners; brighter corners mean the data did not fit)
+CORNER_RANGE = (0.2, 1.03)
+
+
+def fit_problem(fit: VignetteFit) -> str | None:
+    """Why ``fit`` should not be used (a camera that hardly moved across the image, data that do not
+    fit a vignette), or None."""
+    if not fit.corner_std <= MAX_CORNER_STD:
+        return (f"the corners' brightness is too uncertain ({100 * fit.corner:.0f} +- {100 * fit.corner_std:.1f} %; "
+                f"at most +- {100 * MAX_CORNER_STD:.0f} %): the camera must move so that points cross the image")
+    lo, hi = CORNER_RANGE
+    if not lo <= fit.corner <= hi:
+        return (f"the corners would be {100 * fit.corner:.0f} % as bright as the centre (expected "
+                f"{100 * lo:.0f}-{100 * hi:.0f} %): the data do not fit a lens vignette")
+    return None
+
+
 def vignette_image(fit: VignetteFit, camera, map_camera) -> np.ndarray:
     """The vignette at the camera's native resolution (float, maximum 1), for DSO's
     ``vignette.png``. The fit lives in the rectified map image: each native pixel is undistorted
@@ -279,7 +298,8 @@ def write_vignette(folder: Path, fit: VignetteFit, camera, map_camera, given: np
 class VignetteSink(OutputSink):
     """Collects the correspondences of consecutive published maps during a run and, at the end,
     fits the vignette and writes ``vignette.png`` / ``vignette.json`` into ``folder`` (a run that
-    gives too little data writes nothing and says why in the log). ``camera``: the sequence's
+    gives too little or too weak data writes no PNG, only ``vignette.json`` with ``"written": false`` and
+    the reason). ``camera``: the sequence's
     :class:`~lite_vo.camera.Camera` (the PNG is at its native resolution). ``given``: the vignette the
     run already corrected with (native resolution), if any: the fit is then what was left, and the
     written vignette is the product of both."""
@@ -304,9 +324,15 @@ class VignetteSink(OutputSink):
         frame = radial_frame(self.previous.camera) if self.previous is not None else (0.0, 0.0, 1.0)
         try:
             self.fit = fit_vignette(self.pairs, frame)
+            problem = fit_problem(self.fit)
+            if problem:
+                raise InputError(f"vignette estimate rejected: {problem}")
         except InputError as err:
             self.error = str(err)
             log.warning("%s; no vignette.png written", err)
+            record = self.fit.to_dict() if self.fit is not None else {}
+            record.update(written=False, reason=self.error)
+            (self.folder / "vignette.json").write_text(json.dumps(record, indent=2) + "\n")
             return
         path = write_vignette(self.folder, self.fit, self.camera, self.previous.camera, self.given)
         f = self.fit

@@ -9,13 +9,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import shared_sequence
 
 from lite_vo.camera import Camera, PinholeIntrinsics
 from lite_vo.errors import InputError
 from lite_vo.photometric import load_photometric
 from lite_vo.session import PublishedMap
-from lite_vo.vignette import (MAX_FRAME_GAP, PairSamples, correspondences, fit_vignette, radial_frame, radius2,
-                              vignette_image, vignette_of, write_vignette)
+from lite_vo.vignette import (MAX_FRAME_GAP, PairSamples, correspondences, fit_problem, fit_vignette, radial_frame,
+                              radius2, vignette_image, vignette_of, write_vignette)
 
 W, H = 320, 240
 MAP_CAM = PinholeIntrinsics(250.0, 250.0, 159.5, 119.5, W, H)     # the map of a 640x480 camera, f = 500
@@ -67,6 +68,19 @@ def test_fit_leaves_out_pairs_whose_points_do_not_correspond():
         p.i_new[:] = rng.permutation(p.i_new)
     fit = fit_vignette(pairs, FRAME)
     assert fit.pairs == 27 and abs(fit.corner - 0.5) < 0.01
+
+
+def test_a_camera_that_does_not_move_across_the_image_gives_no_vignette():
+    """Points that stay at their radius carry nothing about the vignette: the fit is too uncertain
+    and is rejected; so is a fit whose corners come out brighter than the centre."""
+    pairs = _pairs(np.array([-0.5, 0.0, 0.0]))
+    for p in pairs:
+        p.r2_new[:] = p.r2_old * (1 + 1e-4)                # hardly any motion
+        p.i_new[:] = p.i_old * 1.1 + 3.0 + np.random.default_rng(0).normal(0, 3, len(p.i_old))
+    assert "too uncertain" in fit_problem(fit_vignette(pairs, FRAME))
+    bright = fit_vignette(_pairs(np.array([0.3, 0.0, 0.0])), FRAME)
+    assert bright.corner > 1.2 and "do not fit a lens vignette" in fit_problem(bright)
+    assert fit_problem(fit_vignette(_pairs(np.array([-0.5, 0.0, 0.0])), FRAME)) is None
 
 
 def test_fit_needs_enough_pairs():
@@ -173,4 +187,17 @@ def test_run_estimates_the_vignette_of_a_vignetted_sequence(synth_small, tmp_pat
     short = tmp_path / "short"
     assert main(["run", str(seq), "--out", str(short), "--quiet", "--mode", "sync", "--estimate-vignette",
                  "--max-frames", "8"]) == 0
-    assert not (short / "vignette.png").exists() and "not estimated" in capsys.readouterr().out
+    assert not (short / "vignette.png").exists() and "vignette: not written: " in capsys.readouterr().out
+    assert json.loads((short / "vignette.json").read_text())["written"] is False
+
+
+def test_a_camera_standing_still_writes_no_vignette(tmp_path, capsys):
+    """EuRoC V1_01's first 95 frames: the vehicle stands still, nothing crosses the image."""
+    from lite_vo.cli.main import main
+    seq = shared_sequence("euroc_v101_static95")
+    out = tmp_path / "out"
+    assert main(["run", str(seq), "--out", str(out), "--quiet", "--estimate-vignette"]) == 0
+    said = capsys.readouterr().out
+    record = json.loads((out / "vignette.json").read_text())
+    assert not (out / "vignette.png").exists() and record["written"] is False
+    assert "too uncertain" in record["reason"] and "vignette: not written: " in said

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from .common import add_profile_args, add_viewer_args, config_from_args, viewer_sinks
@@ -92,12 +93,11 @@ def run(args) -> int:
                 f"{100 * acc['median_abs_rel_error']:.2f}%, within 10% {100 * acc['within_10pct']:.1f}%")
     if args.estimate_vignette:
         vj = out / "vignette.json"
-        if vj.exists():
-            import json
-            v = json.loads(vj.read_text())
+        v = json.loads(vj.read_text()) if vj.exists() else {"written": False, "reason": "the run ended before the fit"}
+        if v.get("written", True):
             msg += (f"\n  vignette: {100 * v['corner']:.1f} % (+- {100 * v['corner_std']:.1f}) of the centre's brightness in "
                     f"the corners, from {v['pairs']} pairs of maps -> {out / 'vignette.png'} (use --photometric {out})")
         else:
-            msg += "\n  vignette: not estimated (too few pairs of maps; see the log)"
+            msg += f"\n  vignette: not written: {v['reason']}"
     print(msg)
     return 0 if not res.status.startswith("failed") else 3
