@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -146,7 +146,6 @@ class VignetteFit:
     corner_std: float                           # its standard deviation from the fit's covariance
     iterations: int
     frame: tuple                                # radial_frame of the map camera the fit was made in
-    history: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {"written": True, "model": "V = 1 + k1 rho^2 + k2 rho^4 + k3 rho^6, rho = distance from the principal point / "
@@ -198,13 +197,11 @@ def fit_vignette(pairs: list[PairSamples], frame: tuple, iterations: int = 30,
     a = np.ones(n)
     b = np.zeros(n)
     wr = np.ones_like(io)
-    history = []
     H = np.eye(3)
     it = 0
     for it in range(1, iterations + 1):
         vo, vn = 1.0 + bo @ k, 1.0 + bn @ k
-        ratio = vn / vo
-        x = ratio * io
+        x = vn / vo * io
         # per pair: (a, b) by weighted least squares of inew ~ a x + b
         w = w0 * wr
         sw = np.bincount(pid, w, n)
@@ -227,7 +224,6 @@ def fit_vignette(pairs: list[PairSamples], frame: tuple, iterations: int = 30,
         g = J.T @ (w * r)
         step = np.linalg.solve(H + 1e-9 * np.trace(H) * np.eye(3), -g)
         k = k + step
-        history.append(float(np.sqrt(np.sum(w * r * r) / np.sum(w))))
         if np.max(np.abs(step)) < 1e-6:
             break
     vo, vn = 1.0 + bo @ k, 1.0 + bn @ k
@@ -240,7 +236,7 @@ def fit_vignette(pairs: list[PairSamples], frame: tuple, iterations: int = 30,
     grad_corner = np.ones(3)                     # d V(1) / d k
     corner = float(vignette_of(k, np.array(1.0)))
     corner_std = float(np.sqrt(max(grad_corner @ cov @ grad_corner, 0.0)))
-    return VignetteFit(k, n, len(io), rms, corner, corner_std, it, tuple(frame), history)
+    return VignetteFit(k, n, len(io), rms, corner, corner_std, it, tuple(frame))
 
 
 #: an estimate is only written when the corners' brightness is known to this standard deviation ...
