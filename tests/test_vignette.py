@@ -184,6 +184,15 @@ def test_run_estimates_the_vignette_of_a_vignetted_sequence(synth_small, tmp_pat
     assert f"--photometric {out}" in said
     cal = load_photometric(out)
     assert cal.vignette.shape == (240, 320) and abs(cal.vignette[0, 0] - fit["corner"]) < 0.02
+    # the same from Python: the sink among a Session's sinks (a sync run is deterministic: the same fit)
+    import lite_vo
+    from lite_vo.vignette import VignetteSink
+    opened = lite_vo.open_sequence(seq)
+    sink = VignetteSink(tmp_path / "api", opened.camera)
+    (tmp_path / "api").mkdir()
+    lite_vo.Session(opened, lite_vo.load_profile("phone", ['system.mode="sync"']), sinks=[sink]).run()
+    assert sink.fit.corner == pytest.approx(fit["corner"], abs=1e-12)
+    assert (tmp_path / "api" / "vignette.png").exists()
     short = tmp_path / "short"
     assert main(["run", str(seq), "--out", str(short), "--quiet", "--mode", "sync", "--estimate-vignette",
                  "--max-frames", "8"]) == 0
