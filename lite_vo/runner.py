@@ -17,7 +17,8 @@ from .session import Session
 from .sinks import MapSink, ProgressSink, RunInfoSink, TrajectoryExportSink, TrajectorySink
 
 RUN_OUTPUTS = ("trajectory.txt", "timing.json", "run.json", "map.ply", "depth_accuracy.json", "depth_error.png",
-               "trajectory_kitti.txt", "times.txt", "trajectory.png", "vignette.png", "vignette.json")
+               "trajectory_kitti.txt", "times.txt", "trajectory.png", "vignette.png", "vignette.json",
+               "pcalib.txt")
 
 
 @dataclass
@@ -69,8 +70,7 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
                                             session.sequence.groundtruth))
         if estimate_vignette:
             from .vignette import VignetteSink
-            given = session.photometric.vignette if session.photometric is not None else None
-            own.append(VignetteSink(out, session.sequence.camera, given=given))
+            own.append(VignetteSink(out, session.sequence.camera, given=session.photometric))
     if not quiet:
         own.append(ProgressSink())
     session.sinks = own + list(sinks)

@@ -296,11 +296,12 @@ class VignetteSink(OutputSink):
     fits the vignette and writes ``vignette.png`` / ``vignette.json`` into ``folder`` (a run that
     gives too little or too weak data writes no PNG, only ``vignette.json`` with ``"written": false`` and
     the reason). ``camera``: the sequence's
-    :class:`~lite_vo.camera.Camera` (the PNG is at its native resolution). ``given``: the vignette the
-    run already corrected with (native resolution), if any: the fit is then what was left, and the
-    written vignette is the product of both."""
+    :class:`~lite_vo.camera.Camera` (the PNG is at its native resolution). ``given``: the
+    :class:`~lite_vo.photometric.PhotometricCalibration` the run already corrected with, if any: with a
+    vignette, the fit is what was left and the written vignette is the product of both; its inverse
+    response is written beside it (``pcalib.txt``), so the folder is the whole calibration."""
 
-    def __init__(self, folder, camera, given: np.ndarray | None = None) -> None:
+    def __init__(self, folder, camera, given=None) -> None:
         self.folder = Path(folder)
         self.camera = camera
         self.given = given
@@ -330,7 +331,11 @@ class VignetteSink(OutputSink):
             record.update(written=False, reason=self.error)
             (self.folder / "vignette.json").write_text(json.dumps(record, indent=2) + "\n")
             return
-        path = write_vignette(self.folder, self.fit, self.camera, self.previous.camera, self.given)
+        given = self.given
+        path = write_vignette(self.folder, self.fit, self.camera, self.previous.camera,
+                              given.vignette if given is not None else None)
+        if given is not None and given.inverse_response is not None:
+            (self.folder / "pcalib.txt").write_text(" ".join(f"{v:.6f}" for v in given.inverse_response) + "\n")
         f = self.fit
         log.info("vignette: %.1f %% +- %.1f at the corners (%d pairs of maps, %d points) -> %s",
                  100 * f.corner, 100 * f.corner_std, f.pairs, f.samples, path)

@@ -198,6 +198,18 @@ def test_run_estimates_the_vignette_of_a_vignetted_sequence(synth_small, tmp_pat
                  "--max-frames", "8"]) == 0
     assert not (short / "vignette.png").exists() and "vignette: not written: " in capsys.readouterr().out
     assert json.loads((short / "vignette.json").read_text())["written"] is False
+    # a run that had a calibration: the folder it writes is the whole calibration (response kept)
+    cal_dir = tmp_path / "cal"
+    cal_dir.mkdir()
+    inverse = 255.0 * (np.arange(256) / 255.0) ** 1.5
+    (cal_dir / "pcalib.txt").write_text(" ".join(f"{v:.6f}" for v in inverse))
+    second = tmp_path / "second"
+    assert main(["run", str(seq), "--out", str(second), "--quiet", "--mode", "sync", "--estimate-vignette",
+                 "--photometric", str(cal_dir)]) == 0
+    capsys.readouterr()
+    both = load_photometric(second)
+    np.testing.assert_allclose(both.inverse_response, load_photometric(cal_dir).inverse_response, atol=1e-4)
+    assert both.vignette is not None and both.vignette[0, 0] < 0.7
 
 
 def test_a_camera_standing_still_writes_no_vignette(tmp_path, capsys):
