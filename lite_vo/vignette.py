@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .io import write_file_atomic
 from .session import OutputSink
 
 log = logging.getLogger(__name__)
@@ -107,16 +108,11 @@ def correspondences(old, new, max_points: int = MAX_POINTS_PER_PAIR) -> PairSamp
         return None
     step = max(1, len(u) // max_points)
     v, u = v[::step], u[::step]
-    cam = old.camera
-    d = old.idepth_raw[v, u].astype(np.float64)
-    rays = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones(len(u))], axis=1)
     T = np.linalg.inv(np.asarray(new.T_world_cam, np.float64)) @ np.asarray(old.T_world_cam, np.float64)
-    q = rays @ T[:3, :3].T + d[:, None] * T[:3, 3]          # = (R ray / d + t) * d: same direction
+    q = old.camera.unproject_idepth(u, v, old.idepth_raw[v, u]) @ T[:3, :3].T + T[:3, 3]
     ok = q[:, 2] > 1e-9
     q, v, u = q[ok], v[ok], u[ok]
-    c2 = new.camera
-    un = c2.fx * q[:, 0] / q[:, 2] + c2.cx
-    vn = c2.fy * q[:, 1] / q[:, 2] + c2.cy
+    un, vn = new.camera.project(q).T
     inside = (un >= 1) & (vn >= 1) & (un < w - 2) & (vn < h - 2)
     if int(inside.sum()) < MIN_POINTS_PER_PAIR:
         return None
@@ -287,7 +283,7 @@ def write_vignette(folder: Path, fit: VignetteFit, camera, map_camera, given: np
     path = folder / "vignette.png"
     if not cv2.imwrite(str(path), np.round(v * 65535.0).astype(np.uint16)):
         raise InputError(f"{path}: could not write the vignette image")
-    (folder / "vignette.json").write_text(json.dumps(fit.to_dict(), indent=2) + "\n")
+    write_file_atomic(folder / "vignette.json", json.dumps(fit.to_dict(), indent=2) + "\n")
     return path
 
 
@@ -329,13 +325,13 @@ class VignetteSink(OutputSink):
             log.warning("%s; no vignette.png written", err)
             record = self.fit.to_dict() if self.fit is not None else {}
             record.update(written=False, reason=self.error)
-            (self.folder / "vignette.json").write_text(json.dumps(record, indent=2) + "\n")
+            write_file_atomic(self.folder / "vignette.json", json.dumps(record, indent=2) + "\n")
             return
         given = self.given
         path = write_vignette(self.folder, self.fit, self.camera, self.previous.camera,
                               given.vignette if given is not None else None)
         if given is not None and given.inverse_response is not None:
-            (self.folder / "pcalib.txt").write_text(" ".join(f"{v:.6f}" for v in given.inverse_response) + "\n")
+            write_file_atomic(self.folder / "pcalib.txt", " ".join(f"{v:.6f}" for v in given.inverse_response) + "\n")
         f = self.fit
         log.info("vignette: %.1f %% +- %.1f at the corners (%d pairs of maps, %d points) -> %s",
                  100 * f.corner, 100 * f.corner_std, f.pairs, f.samples, path)
