@@ -56,7 +56,7 @@ from .records import RowRecord
 from .timing import Timers
 from .tracking import Tracker, TrackingReference, depth_image_idepth
 from .tracking.relocalizer import Relocalizer
-from .photometric import PhotometricCalibration, PhotometricMonitor, compose_affine
+from .photometric import PhotometricCalibration, PhotometricMonitor, affine_transfer, compose_affine
 
 log = logging.getLogger(__name__)
 
@@ -530,14 +530,27 @@ class VisualOdometry:
         guess_world = base @ self._velocity if self.config.tracking.constant_velocity else base
         T_guess = T_ref_world @ guess_world
         sigma = self._tracking_sigma(frame)
-        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, self._monitor.affine_guess(ref.affine), sigma,
-                                 motion=(T_ref_world @ base, self._velocity))
+        affine_guess, fixed = self._monitor.affine_guess(ref.affine), False
+        if self._verifier is not None and self.config.tracking.affine_brightness:
+            # an unverified random map cannot measure the brightness (a gain fitted to wrong depths
+            # shrinks towards 0, the offset towards the mean): the corners' patch means can
+            rel = self._verifier.observe(frame.index, frame.image)
+            init_affine = self._recent_affine.get(self._verifier.index0)
+            if rel is not None and init_affine is not None:
+                affine_guess, fixed = affine_transfer(ref.affine, compose_affine(init_affine, rel)), True
+        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, affine_guess, sigma,
+                                 motion=(T_ref_world @ base, self._velocity), fix_affine=fixed)
         for lvl, ms in tr.level_ms.items():
             self.timers.add(f"track_lvl{lvl}", ms)
         quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio), "hypothesis": tr.hypothesis,
                    "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used),
                    "sharpness": float(frame.sharpness), "affine_a": tr.affine[0], "affine_b": tr.affine[1],
                    "lost_reason": tr.lost_reason, "clipped": frame.clipped}
+        if self._verifier is not None and tr.lost_reason == "residual too large":
+            # an unverified random map: its residuals are large by nature (worse the brighter the
+            # frame); a frame lost now is never mapped, so the map never converges, and the two-view
+            # check replaces the map and these poses if the tracked motion is wrong
+            tr.lost, tr.lost_reason = False, ""
         lost = bool(tr.lost) or not np.all(np.isfinite(tr.T_ref_new))
         if not lost:
             self._book_brightness(frame, ref.affine, tr)

@@ -203,3 +203,27 @@ def test_bundle_adjust_converges_to_one_answer_along_the_flat_valley_of_a_short_
     apart = max(np.degrees(np.linalg.norm(log_so3(ends[a][f, :3, :3] @ ends[b][f, :3, :3].T)))
                 for f in range(1, F) for a, b in ((0, 1), (0, 2), (1, 2)))
     assert apart < 0.05
+
+
+def test_observe_measures_the_brightness_before_the_pose_is_known(scene_and_start):
+    """``observe`` follows the corners and measures the frame's brightness without a pose (the tracker
+    holds it on the unverified random map); ``add`` then decides on the same corners without following
+    them again, and a second ``observe`` of the frame changes nothing."""
+    scene, T0, K = scene_and_start
+    frames = _frames(scene, T0, K, lambda k: exp_se3(np.array([0.012 * k, 0.002 * k, 0, 0, 0.001 * k, 0])), 12)
+    gains = [1.0 + 0.03 * k for k in range(len(frames))]          # exposure rising 3 % per frame
+    offsets = [0.5 * k for k in range(len(frames))]
+    images = [np.clip(g * np.asarray(img, np.float32) + o, 0, 255) for (_, img), g, o in zip(frames, gains, offsets)]
+    ver = InitVerifier(SystemConfig(), K, images[0], T0, 0, 0.0)
+    for k in range(1, len(frames)):
+        a, b = ver.observe(k, images[k])
+        assert abs(a - gains[k]) < 0.03 and abs(a * 128 + b - (gains[k] * 128 + offsets[k])) < 2.5, (k, a, b)
+        pts = ver.pts.copy()
+        assert ver.observe(k, images[k]) == (a, b)
+        ver.add(k, k / 30.0, images[k], frames[k][0])
+        assert np.array_equal(ver.pts, pts)
+    # the same frames given to add alone follow the corners to the same places
+    ver2 = InitVerifier(SystemConfig(), K, images[0], T0, 0, 0.0)
+    for k in range(1, len(frames)):
+        ver2.add(k, k / 30.0, images[k], frames[k][0])
+    assert np.array_equal(ver2.pts, ver.pts) and ver2.affine == ver.affine

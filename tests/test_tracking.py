@@ -307,6 +307,24 @@ def test_joint_affine_brightness_recovers_gain_and_offset(room_pair, gain, offse
     assert res_off.lost or res_off.mean_abs_residual > 3 * res.mean_abs_residual
 
 
+def test_fixed_affine_is_held_for_one_call_only(room_pair):
+    """``fix_affine``: a brightness measured elsewhere is held (the pose alone is solved, as accurate as
+    with the joint estimate when the brightness is right); the next call estimates it again."""
+    room, ref = room_pair
+    T_ref_new = exp_se3(np.array([0.01, 0.01, 0.0, 0.0, 0.01, 0.0]))
+    img1, _ = room.render(T_ref_new, INTR, supersample=2)
+    pyr1 = image_pyramid(1.3 * img1 - 10.0, LEVELS)
+    tracker = Tracker(TrackingConfig(affine_brightness=True), INTR, LEVELS, TRACK_LEVEL)
+    held = tracker.track(ref, pyr1, np.eye(4), affine_guess=(1.3, -10.0), fix_affine=True)
+    assert held.affine == (1.3, -10.0) and not held.lost
+    t_err, r_err = _pose_error(held.T_ref_new, T_ref_new)
+    assert t_err < 1e-3 and r_err < 0.05, (t_err, r_err)
+    wrong = tracker.track(ref, pyr1, np.eye(4), affine_guess=(1.0, 0.0), fix_affine=True)
+    assert wrong.affine == (1.0, 0.0) and wrong.mean_abs_residual > 3 * held.mean_abs_residual
+    free = tracker.track(ref, pyr1, np.eye(4), affine_guess=(1.0, 0.0))
+    assert free.affine[0] == pytest.approx(1.3, abs=0.01) and free.affine[1] == pytest.approx(-10.0, abs=1.5)
+
+
 def test_affine_prior_pulls_towards_identity_when_brightness_is_unobservable():
     """A reference of one intensity only: gain and offset cannot be told apart; the weak prior keeps
     the system solvable and the estimate explains the new brightness."""

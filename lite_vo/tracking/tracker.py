@@ -199,11 +199,11 @@ class Tracker:
         return g
 
     def track(self, ref: TrackingReference, image_pyr_new, T_ref_new_guess, affine_guess=(1.0, 0.0),
-              sigma_i: float | None = None, motion: tuple | None = None) -> TrackingResult:
+              sigma_i: float | None = None, motion: tuple | None = None, fix_affine: bool = False) -> TrackingResult:
         """Align ``image_pyr_new`` (float32 pyramid, level 0 = mapping resolution) to ``ref``.
 
         ``affine_guess``: starting ``(a, b)`` of ``I_new = a I_ref + b`` (kept fixed when
-        ``affine_brightness`` is off); ``sigma_i``: intensity noise std of the weights for this frame
+        ``affine_brightness`` is off or ``fix_affine``: a brightness measured elsewhere); ``sigma_i``: intensity noise std of the weights for this frame
         (None: ``config.sigma_i``).
 
         ``motion = (T_ref_last, velocity)`` (the last frame's pose in the reference and the last
@@ -213,6 +213,16 @@ class Tracker:
         are tried on the coarsest level and the first one whose energy is acceptable (else the lowest)
         is tracked to the finest level; it replaces a lost first result, or a tracked one whose residual
         it beats by the factor ``hypothesis_improvement`` (``result.hypothesis`` says which won)."""
+        prm = self._frame_params
+        enabled = prm[kernels.TP_AFF_ENABLED]
+        if fix_affine:
+            prm[kernels.TP_AFF_ENABLED] = 0.0
+        try:
+            return self._track(ref, image_pyr_new, T_ref_new_guess, affine_guess, sigma_i, motion)
+        finally:
+            prm[kernels.TP_AFF_ENABLED] = enabled
+
+    def _track(self, ref, image_pyr_new, T_ref_new_guess, affine_guess, sigma_i, motion) -> TrackingResult:
         t_start = time.perf_counter()
         res = self._track_once(ref, image_pyr_new, T_ref_new_guess, affine_guess, sigma_i)
         c = self.config
