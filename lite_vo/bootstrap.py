@@ -240,9 +240,10 @@ class InitVerifier:
         self.tracks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # index -> (pts, alive)
         self.frames = [(index0, timestamp0, np.asarray(image0, np.float32))]
         self._observed = index0                    # the last frame the corners were followed into
+        self._gain = 1.0                           # its gain relative to the init frame (as measured)
         self.done = len(self.p0) < config.verify_min_inliers
 
-    def _lk_normalised(self, image: np.ndarray) -> np.ndarray:
+    def _lk_normalised(self, image: np.ndarray, gain: float = 1.0) -> np.ndarray:
         """The image locally normalised (zero mean and unit contrast in a Gaussian window of
         ``LCN_SIGMA`` px), 8 bit, for Lucas-Kanade: LK assumes constant brightness, and an
         auto-exposure camera (or vignetting) changes it; the normalised image stays the same under an
@@ -251,7 +252,7 @@ class InitVerifier:
         img = np.asarray(image, np.float32)
         m = cv2.GaussianBlur(img, (0, 0), LCN_SIGMA * self.scale_px)
         v = cv2.GaussianBlur(img * img, (0, 0), LCN_SIGMA * self.scale_px) - m * m
-        z = (img - m) / (np.sqrt(np.maximum(v, 0.0)) + LCN_EPS)
+        z = (img - m) / (np.sqrt(np.maximum(v, 0.0)) + LCN_EPS * gain)
         return np.clip(128.0 + 40.0 * z, 0, 255).astype(np.uint8)
 
     def observe(self, index: int, image: np.ndarray) -> tuple[float, float] | None:
@@ -269,7 +270,7 @@ class InitVerifier:
         # always in the normalised images: switching to them when the exposure starts to move shifts
         # the corners (their centre is not the same in both kinds of image), and they cost nothing
         # in accuracy on a constant exposure (ICL, random init: ATE 0.88 -> 0.71 % of the path)
-        cur = self._lk_normalised(image)
+        cur = self._lk_normalised(image, self._gain)
         nxt, st, _ = cv2.calcOpticalFlowPyrLK(self.prev, cur, self.pts.reshape(-1, 1, 2), None,
                                               winSize=(15, 15), maxLevel=3)
         self.alive &= st.ravel() == 1
@@ -280,6 +281,7 @@ class InitVerifier:
         rel = patch_affine(self.frames[0][2], image, self.p0[self.alive], self.pts[self.alive], self.saturation)
         if rel is not None:
             self.affine[index] = rel
+            self._gain = rel[0]
         self.prev = cur
         self.tracks[index] = (self.pts.copy(), self.alive.copy())
         return self.affine.get(index)
