@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -174,6 +175,15 @@ def _evaluate_depth(frame: _Frame, idepth: np.ndarray, valid: np.ndarray, monocu
             idepth = idepth / scale
     acc = depth_accuracy(idepth, valid, gt)
     return {"frame": frame.index, "t": t, "scale": scale, **acc}
+
+
+def _brightness_disagrees(estimated: tuple, measured: tuple, gain_tol: float = 0.1, grey_tol: float = 10.0) -> bool:
+    """Whether a tracked brightness change ``(a, b)`` is far from a measured one: gains more than
+    ``gain_tol`` apart (relative) or mid-grey (128) mapped more than ``grey_tol`` grey levels apart."""
+    (a, b), (am, bm) = estimated, measured
+    if not (a > 0 and am > 0):
+        return True
+    return abs(math.log(a / am)) > gain_tol or abs((a - am) * 128.0 + b - bm) > grey_tol
 
 
 class VisualOdometry:
@@ -530,16 +540,23 @@ class VisualOdometry:
         guess_world = base @ self._velocity if self.config.tracking.constant_velocity else base
         T_guess = T_ref_world @ guess_world
         sigma = self._tracking_sigma(frame)
-        affine_guess, fixed = self._monitor.affine_guess(ref.affine), False
+        measured = None
         if self._verifier is not None and self.config.tracking.affine_brightness:
-            # an unverified random map cannot measure the brightness (a gain fitted to wrong depths
-            # shrinks towards 0, the offset towards the mean): the corners' patch means can
+            # the corners' patch means measure the brightness independently of the depths
             rel = self._verifier.observe(frame.index, frame.image)
             init_affine = self._recent_affine.get(self._verifier.index0)
             if rel is not None and init_affine is not None:
-                affine_guess, fixed = affine_transfer(ref.affine, compose_affine(init_affine, rel)), True
-        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, affine_guess, sigma,
-                                 motion=(T_ref_world @ base, self._velocity), fix_affine=fixed)
+                measured = affine_transfer(ref.affine, compose_affine(init_affine, rel))
+        motion = (T_ref_world @ base, self._velocity)
+        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, self._monitor.affine_guess(ref.affine),
+                                 sigma, motion=motion)
+        if measured is not None and _brightness_disagrees(tr.affine, measured):
+            # on an unverified random map a free gain can collapse (shrinks towards 0, the offset
+            # towards the mean): track again holding the measured brightness
+            held = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, measured, sigma, motion=motion,
+                                       fix_affine=True)
+            held.level_ms = {k: v + tr.level_ms.get(k, 0.0) for k, v in held.level_ms.items()}
+            tr = held
         for lvl, ms in tr.level_ms.items():
             self.timers.add(f"track_lvl{lvl}", ms)
         quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio), "hypothesis": tr.hypothesis,
