@@ -557,17 +557,19 @@ class VisualOdometry:
                                        fix_affine=True)
             held.level_ms = {k: v + tr.level_ms.get(k, 0.0) for k, v in held.level_ms.items()}
             tr = held
+        g = self.config.tracking.max_gain_change
+        if self._verifier is not None and tr.lost_reason == "residual too large" and 1.0 / g <= tr.affine[0] <= g:
+            # an unverified random map: its residuals are large by nature (worse the brighter the
+            # frame); a frame lost now is never mapped, so the map never converges, and the two-view
+            # check replaces the map and these poses if the tracked motion is wrong (the lost test's
+            # later check, the brightness change, is repeated here)
+            tr.lost, tr.lost_reason = False, ""
         for lvl, ms in tr.level_ms.items():
             self.timers.add(f"track_lvl{lvl}", ms)
         quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio), "hypothesis": tr.hypothesis,
                    "inside_ratio": float(tr.inside_ratio), "points_used": int(tr.points_used),
                    "sharpness": float(frame.sharpness), "affine_a": tr.affine[0], "affine_b": tr.affine[1],
                    "lost_reason": tr.lost_reason, "clipped": frame.clipped}
-        if self._verifier is not None and tr.lost_reason == "residual too large":
-            # an unverified random map: its residuals are large by nature (worse the brighter the
-            # frame); a frame lost now is never mapped, so the map never converges, and the two-view
-            # check replaces the map and these poses if the tracked motion is wrong
-            tr.lost, tr.lost_reason = False, ""
         lost = bool(tr.lost) or not np.all(np.isfinite(tr.T_ref_new))
         if not lost:
             self._book_brightness(frame, ref.affine, tr)

@@ -203,8 +203,8 @@ class Tracker:
         """Align ``image_pyr_new`` (float32 pyramid, level 0 = mapping resolution) to ``ref``.
 
         ``affine_guess``: starting ``(a, b)`` of ``I_new = a I_ref + b`` (kept fixed when
-        ``affine_brightness`` is off or ``fix_affine``: a brightness measured elsewhere); ``sigma_i``: intensity noise std of the weights for this frame
-        (None: ``config.sigma_i``).
+        ``affine_brightness`` is off, or for this call with ``fix_affine``: a brightness measured
+        elsewhere); ``sigma_i``: intensity noise std of the weights for this frame (None: ``config.sigma_i``).
 
         ``motion = (T_ref_last, velocity)`` (the last frame's pose in the reference and the last
         frame-to-frame motion ``T_last_new``) enables the wide basin: when tracking from
