@@ -557,13 +557,12 @@ class VisualOdometry:
                                        fix_affine=True)
             held.level_ms = {k: v + tr.level_ms.get(k, 0.0) for k, v in held.level_ms.items()}
             tr = held
-        g = self.config.tracking.max_gain_change
-        if self._verifier is not None and tr.lost_reason == "residual too large" and 1.0 / g <= tr.affine[0] <= g:
+        if self._verifier is not None and tr.lost_reason == "residual too large":
             # an unverified random map: its residuals are large by nature (worse the brighter the
             # frame); a frame lost now is never mapped, so the map never converges, and the two-view
-            # check replaces the map and these poses if the tracked motion is wrong (the lost test's
-            # later check, the brightness change, is repeated here)
-            tr.lost, tr.lost_reason = False, ""
+            # check replaces the map and these poses if the tracked motion is wrong
+            tr.lost_reason = self._tracker.lost_reason(tr, check_residual=False)
+            tr.lost = bool(tr.lost_reason)
         for lvl, ms in tr.level_ms.items():
             self.timers.add(f"track_lvl{lvl}", ms)
         quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio), "hypothesis": tr.hypothesis,

@@ -376,16 +376,24 @@ class Tracker:
         finite = bool(np.isfinite(T).all())
         if finite:
             res.T_ref_new = inverse_se3(project_to_se3(T))
-        if not finite:
-            res.lost_reason = "non-finite pose"
-        elif res.inside_ratio < c.min_inside_ratio:
-            res.lost_reason = "too few points inside the image"
-        elif res.good_ratio < c.min_good_ratio:
-            res.lost_reason = "too few good residuals"
-        elif c.max_abs_residual > 0 and not res.residual_spread <= c.max_abs_residual:
-            res.lost_reason = "residual too large"
-        elif not 1.0 / c.max_gain_change <= res.affine[0] <= c.max_gain_change:
-            res.lost_reason = "implausible brightness change"
+        res.lost_reason = self.lost_reason(res, finite)
         res.lost = bool(res.lost_reason)
         res.total_ms = (time.perf_counter() - t_start) * 1e3
         return res
+
+    def lost_reason(self, res: TrackingResult, finite: bool = True, check_residual: bool = True) -> str:
+        """The lost test of a result with points on the finest level: the first failed check, or '' when
+        it is tracked. ``finite``: whether the pose came out finite; ``check_residual=False`` leaves the
+        residual spread out (the caller knows the map's residuals are large by nature)."""
+        c = self.config
+        if not finite:
+            return "non-finite pose"
+        if res.inside_ratio < c.min_inside_ratio:
+            return "too few points inside the image"
+        if res.good_ratio < c.min_good_ratio:
+            return "too few good residuals"
+        if check_residual and c.max_abs_residual > 0 and not res.residual_spread <= c.max_abs_residual:
+            return "residual too large"
+        if not 1.0 / c.max_gain_change <= res.affine[0] <= c.max_gain_change:
+            return "implausible brightness change"
+        return ""
