@@ -5,11 +5,17 @@ otherwise the filter settles on a wrong structure (e.g. the inverted-depth solut
 tracked motion is wrong although the photometric residual is small. :class:`InitVerifier` watches
 the first seconds after a random initialisation:
 
-1. corners of the initialisation frame are followed with pyramidal Lucas-Kanade (OpenCV);
+1. corners of the initialisation frame are followed with pyramidal Lucas-Kanade (OpenCV), at
+   ``verify_lk_scale`` times the mapping resolution when the camera has the pixels (frame to frame
+   tracking drifts; at twice the resolution it drifts half as much, and the start-up poses are
+   only as good as the corners);
 2. once their median displacement reaches ``verify_min_parallax_px`` (scaled to the mapping
-   width) and the essential matrix explains the correspondences clearly better than a homography
-   (i.e. there is translation, not only rotation), the relative pose from the essential matrix is
-   compared with the pose the VO tracked over the same frames;
+   width), the essential matrix explains the correspondences clearly better than a homography
+   (i.e. there is translation, not only rotation) and the translation direction it gives is known
+   to ``verify_max_tdir_std_deg`` (:func:`translation_direction_std_deg`; a motion that is mostly
+   rotation leaves it loose, and the map built on it stays wrong for seconds; the bar is lowered
+   with time, to three times that at ``verify_max_s``), the relative pose
+   from the essential matrix is compared with the pose the VO tracked over the same frames;
 3. if they agree (rotation and translation direction within the configured angles) the
    initialisation is accepted; if not, it returns a :class:`Bootstrap`: the init frame and the
    current frame are triangulated, every frame in between gets a PnP pose, all of them are refined
@@ -26,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import PinholeIntrinsics
-from .geometry import exp_se3, hat, inverse_se3, log_so3, make_pose
+from .geometry import exp_se3, exp_so3, hat, inverse_se3, log_so3, make_pose
 
 log = logging.getLogger(__name__)
 
@@ -204,6 +210,47 @@ def _levenberg_marquardt(K, T, rho, uv, vis, iters, huber_px, rel_tol):
     return T, rho
 
 
+def translation_direction_std_deg(K: np.ndarray, R: np.ndarray, t: np.ndarray, a: np.ndarray, b: np.ndarray,
+                                  sigma_floor_px: float) -> float:
+    """How well the corners ``a`` (first view) and ``b`` (second view, pixels) pin down the direction
+    of ``t`` in the relative pose ``(R, t)`` (``x_b = R x_a + t``): one standard deviation in degrees
+    (the larger axis), from the Gauss-Newton covariance of the signed Sampson errors over rotation
+    and translation direction (five unknowns), with the errors' robust spread (at least
+    ``sigma_floor_px``) as their noise. Small for a sideways or forward motion seen over many
+    corners; large when the motion is mostly rotation (the translation's small share of the
+    parallax fits many directions)."""
+    Ki = np.linalg.inv(K)
+    x1 = np.hstack([a, np.ones((len(a), 1))])
+    x2 = np.hstack([b, np.ones((len(b), 1))])
+    t = np.asarray(t, np.float64).ravel()
+    t = t / np.linalg.norm(t)
+    e1 = np.cross(t, np.eye(3)[int(np.argmin(np.abs(t)))])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(t, e1)
+
+    def residuals(p):
+        tp = t + e1 * p[3] + e2 * p[4]
+        F = Ki.T @ hat(tp / np.linalg.norm(tp)) @ exp_so3(p[:3]) @ R @ Ki
+        Fx1 = x1 @ F.T
+        Ftx2 = x2 @ F
+        den = np.sqrt(Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2) + 1e-12
+        return np.sum(x2 * Fx1, axis=1) / den
+
+    r = residuals(np.zeros(5))
+    J = np.empty((len(r), 5))
+    for k in range(5):
+        d = np.zeros(5)
+        d[k] = 1e-6
+        J[:, k] = (residuals(d) - residuals(-d)) / 2e-6
+    sigma = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), sigma_floor_px)
+    try:
+        C = sigma ** 2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return 180.0
+    var = float(np.linalg.eigvalsh(C[3:, 3:]).max())
+    return float(np.degrees(np.sqrt(var))) if np.isfinite(var) and var > 0 else 180.0
+
+
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     na, nb = np.linalg.norm(a), np.linalg.norm(b)
     if na < 1e-12 or nb < 1e-12:
@@ -220,16 +267,25 @@ class InitVerifier:
     """
 
     def __init__(self, config, intrinsics: PinholeIntrinsics, image0: np.ndarray, T_world_init: np.ndarray,
-                 index0: int, timestamp0: float, saturation: float = 250.0) -> None:
+                 index0: int, timestamp0: float, saturation: float = 250.0,
+                 lk_intrinsics: PinholeIntrinsics | None = None, lk_image0: np.ndarray | None = None) -> None:
+        """``image0``: the first frame at mapping resolution (``intrinsics``); ``lk_image0`` and
+        ``lk_intrinsics``: the same frame at the resolution the corners are followed in (then every
+        :meth:`observe` and :meth:`add` must get that frame's image at this resolution too); by
+        default the mapping resolution."""
         import cv2
         self._cv2 = cv2
         self.cfg = config
         self.saturation = float(saturation)
         self.affine: dict[int, tuple[float, float]] = {}
+        self.frames = [(index0, timestamp0, np.asarray(image0, np.float32))]   # for the replay
+        if lk_image0 is not None:
+            intrinsics, image0 = lk_intrinsics, lk_image0
+        self._image0 = np.asarray(image0, np.float32)                           # as the corners see it
         self.K = intrinsics.K
         self.scale_px = intrinsics.width / 320.0
         self.prev = self._lk_normalised(image0)
-        img = np.clip(np.asarray(image0, np.float32), 0, 255).astype(np.uint8)
+        img = np.clip(self._image0, 0, 255).astype(np.uint8)
         pts = cv2.goodFeaturesToTrack(img, maxCorners=int(config.verify_features), qualityLevel=0.01,
                                       minDistance=max(3, int(7 * self.scale_px)))
         self.p0 = np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
@@ -238,7 +294,6 @@ class InitVerifier:
         self.T_world_init = T_world_init.copy()
         self.index0, self.t0 = index0, timestamp0
         self.tracks: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # index -> (pts, alive)
-        self.frames = [(index0, timestamp0, np.asarray(image0, np.float32))]
         self._observed = index0                    # the last frame the corners were followed into
         self._gain = 1.0                           # its gain relative to the init frame (as measured)
         self.done = len(self.p0) < config.verify_min_inliers
@@ -260,11 +315,14 @@ class InitVerifier:
         frame (``I = a I_init + b`` on the corners' patch means): independent of the map's depths, so
         the tracker can hold it while the random map cannot say (see :meth:`add`). Returns ``(a, b)``,
         or None when it cannot be measured (too few unclipped corners with enough spread) or the
-        verification is over. Called at most once per frame; :meth:`add` calls it when the caller did not."""
+        verification is over. Called at most once per frame; :meth:`add` calls it when the caller did not.
+        ``image``: at the corners' resolution (see the constructor)."""
         if self.done:
             return None
         if index == self._observed:
             return self.affine.get(index)
+        if np.shape(image) != self._image0.shape:
+            raise ValueError(f"start-up check: frame {index} is {np.shape(image)}, the corners follow {self._image0.shape}")
         cv2 = self._cv2
         self._observed = index
         # always in the normalised images: switching to them when the exposure starts to move shifts
@@ -278,7 +336,7 @@ class InitVerifier:
         h, w = cur.shape
         inside = (self.pts[:, 0] >= 0) & (self.pts[:, 0] < w) & (self.pts[:, 1] >= 0) & (self.pts[:, 1] < h)
         self.alive &= inside
-        rel = patch_affine(self.frames[0][2], image, self.p0[self.alive], self.pts[self.alive], self.saturation)
+        rel = patch_affine(self._image0, image, self.p0[self.alive], self.pts[self.alive], self.saturation)
         if rel is not None:
             self.affine[index] = rel
             self._gain = rel[0]
@@ -286,9 +344,12 @@ class InitVerifier:
         self.tracks[index] = (self.pts.copy(), self.alive.copy())
         return self.affine.get(index)
 
-    def add(self, index: int, timestamp: float, image: np.ndarray, T_world_cam: np.ndarray | None):
+    def add(self, index: int, timestamp: float, image: np.ndarray, T_world_cam: np.ndarray | None,
+            lk_image: np.ndarray | None = None):
         """The frame's tracked pose ``T_world_cam`` (None: lost) against the two-view geometry of the
-        corners followed so far: ``None`` (undecided), ``"accept"``, ``"give_up"`` or a :class:`Bootstrap`."""
+        corners followed so far: ``None`` (undecided), ``"accept"``, ``"give_up"`` or a :class:`Bootstrap`.
+        ``image``: at mapping resolution (replayed by a bootstrap); ``lk_image``: at the corners'
+        resolution when it is another one."""
         if self.done:
             return None
         cfg = self.cfg
@@ -297,7 +358,7 @@ class InitVerifier:
             log.info("init verification: no decision within %.1f s, keeping the random initialisation", cfg.verify_max_s)
             return "give_up"
         if index != self._observed:
-            self.observe(index, image)
+            self.observe(index, image if lk_image is None else lk_image)
         cv2 = self._cv2
         self.frames.append((index, timestamp, np.asarray(image, np.float32)))
         a, b = self.p0[self.alive], self.pts[self.alive]
@@ -321,6 +382,11 @@ class InitVerifier:
         _, R, t, mask = cv2.recoverPose(E[:3], a, b, self.K, mask=inl_e.copy())
         if mask is None or int((mask.ravel() > 0).sum()) < cfg.verify_min_inliers:
             return None  # too few points in front of both cameras: no decision yet
+        front = mask.ravel() > 0
+        tdir_std = translation_direction_std_deg(self.K, R, t, a[front], b[front], 0.1 * self.scale_px)
+        # the bar is lowered with time (3x at verify_max_s) so a start that keeps rotating still bootstraps
+        if tdir_std > cfg.verify_max_tdir_std_deg * (1.0 + 2.0 * (timestamp - self.t0) / cfg.verify_max_s):
+            return None  # mostly rotation so far: the translation direction is still loose
         T_e = make_pose(R, t.ravel())  # T_cur_init, unit translation
         if T_world_cam is not None:
             T_vo = inverse_se3(T_world_cam) @ self.T_world_init

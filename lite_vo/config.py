@@ -76,6 +76,8 @@ class SystemConfig:
     verify_ransac_px: float = param(1.0, "RANSAC threshold of the essential matrix and homography (px at 320 width)", 0.1, 20.0)
     verify_eh_ratio: float = param(1.2, "the essential matrix must have this many times the homography's inliers (translation, not just rotation)", 1.0, 10.0)
     verify_min_inliers: int = param(40, "fewest corner inliers for a decision", 8, 5000)
+    verify_lk_scale: float = param(2.0, "the corners are followed at this multiple of the mapping resolution (at most the camera's own); 1: at the mapping resolution", 1.0, 4.0)
+    verify_max_tdir_std_deg: float = param(0.6, "wait until the two-view translation direction is known to this (one standard deviation, from the corners' epipolar residuals; three times this at verify_max_s)", 0.01, 180.0)
     bootstrap_always: bool = param(True, "re-initialise from two views as soon as the geometry allows, even when the tracked motion agrees (the two-view poses are the better ones)")
     verify_max_rot_deg: float = param(2.0, "largest rotation difference between tracked and two-view pose that counts as agreement", 0.0, 180.0)
     verify_max_tdir_deg: float = param(30.0, "largest translation-direction difference that counts as agreement", 0.0, 180.0)

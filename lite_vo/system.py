@@ -146,6 +146,7 @@ class _Frame:
     affine: tuple = (1.0, 0.0)        # brightness (A, B): I = A * J + B, chained by tracking
     noise_sigma: float = float("nan")  # smoothed image noise estimate (grey levels)
     rectify_depth: Any = None          # native depth -> mapping resolution (the system's rectifier)
+    corner_image: np.ndarray | None = None  # at the start-up corners' resolution, while they are followed
     _depth_m: np.ndarray | None = None
 
     @property
@@ -225,6 +226,9 @@ class VisualOdometry:
             camera = Camera(camera)
         self._rectifier = camera.rectifier(res.map_width, multiple_of=2 ** (res.pyramid_levels - 1))
         self.map_intrinsics: PinholeIntrinsics = self._rectifier.intrinsics
+        # the monocular start-up follows its corners at a finer resolution when the camera has the pixels
+        lk_width = min(int(round(config.system.verify_lk_scale * res.map_width)), camera.intrinsics.width)
+        self._corner_rectifier = camera.rectifier(lk_width, multiple_of=2) if lk_width > res.map_width else None
         #: the finest tracking level (``resolution.track_level``, finer for wide images: :func:`tracking_level`)
         self.track_level = tracking_level(res, self.map_intrinsics.width, self.map_intrinsics.height)
         if self.track_level != res.track_level:
@@ -436,6 +440,10 @@ class VisualOdometry:
         clipped = float(np.count_nonzero(img >= self.config.mapping.saturation)) / img.size
         frame = _Frame(self._index, float(timestamp), img, pyr, depth, sharpness=sharp, color=color,
                        rectify_depth=self._rectifier.depth, clipped=clipped)
+        if self._corner_rectifier is not None and (not self._initialized or self._verifier is not None
+                                                   or self._lost_count > 0):
+            # a monocular start-up may begin (first frame, or a re-initialisation after a loss) or is on
+            frame.corner_image = self._corner_rectifier(image)
         self._index += 1
         return frame
 
@@ -514,9 +522,12 @@ class VisualOdometry:
         self._install_mapper(mapper, frame)
         self._verifier = None
         if not use_depth and self.config.system.verify_init and self.pose_source == "estimate":
+            fine = frame.corner_image is not None
             self._verifier = InitVerifier(self.config.system, self.map_intrinsics, frame.image, T_world_cam,
-                                          frame.index, frame.timestamp, self.config.tracking.saturation)
+                                          frame.index, frame.timestamp, self.config.tracking.saturation,
+                                          self._corner_rectifier.intrinsics if fine else None, frame.corner_image)
             self._recent_affine[frame.index] = frame.affine
+        frame.corner_image = None
         self._initialized = True
         self.metric = bool(use_depth)
         self._last_pose = T_world_cam.copy()
@@ -543,7 +554,7 @@ class VisualOdometry:
         measured = None
         if self._verifier is not None and self.config.tracking.affine_brightness:
             # the corners' patch means measure the brightness independently of the depths
-            rel = self._verifier.observe(frame.index, frame.image)
+            rel = self._verifier.observe(frame.index, frame.image if frame.corner_image is None else frame.corner_image)
             init_affine = self._recent_affine.get(self._verifier.index0)
             if rel is not None and init_affine is not None:
                 measured = affine_transfer(ref.affine, compose_affine(init_affine, rel))
@@ -579,7 +590,8 @@ class VisualOdometry:
             quality["brightness_a"], quality["brightness_b"] = float(frame.affine[0]), float(frame.affine[1])
         T_world_new = None if lost else project_to_se3(ref.T_world_ref @ tr.T_ref_new)
         if self._verifier is not None:
-            decision = self._verifier.add(frame.index, frame.timestamp, frame.image, T_world_new)
+            decision = self._verifier.add(frame.index, frame.timestamp, frame.image, T_world_new, frame.corner_image)
+            frame.corner_image = None       # followed: not kept with the frame
             if decision is not None:
                 self._verifier = None
                 if not isinstance(decision, str):
