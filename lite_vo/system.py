@@ -228,7 +228,8 @@ class VisualOdometry:
         self.map_intrinsics: PinholeIntrinsics = self._rectifier.intrinsics
         # the monocular start-up follows its corners at a finer resolution when the camera has the pixels
         lk_width = min(int(round(config.system.verify_lk_scale * res.map_width)), camera.intrinsics.width)
-        self._corner_rectifier = camera.rectifier(lk_width, multiple_of=2) if lk_width > res.map_width else None
+        self._corner_rectifier = (camera.rectifier(lk_width, multiple_of=2) if lk_width > res.map_width
+                                  and config.system.verify_init and pose_source == "estimate" else None)
         #: the finest tracking level (``resolution.track_level``, finer for wide images: :func:`tracking_level`)
         self.track_level = tracking_level(res, self.map_intrinsics.width, self.map_intrinsics.height)
         if self.track_level != res.track_level:
