@@ -21,13 +21,16 @@ from lite_vo.timing import Timers
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 
 
-def _traced_growth(fn) -> tuple[int, int]:
-    """(bytes, blocks) still allocated after ``fn()`` that were not before (tracemalloc)."""
+def _traced_growth(fn, module) -> tuple[int, int]:
+    """(bytes, blocks) still allocated after ``fn()`` that were not before (tracemalloc), counting only
+    the allocations made in ``module``'s file: tracemalloc sees every thread, and a thread another test
+    left behind in the same worker must not count."""
     tracemalloc.start()
     try:
-        before = tracemalloc.take_snapshot()
+        keep_only = [tracemalloc.Filter(True, module.__file__)]
+        before = tracemalloc.take_snapshot().filter_traces(keep_only)
         keep = fn()
-        after = tracemalloc.take_snapshot()
+        after = tracemalloc.take_snapshot().filter_traces(keep_only)
     finally:
         tracemalloc.stop()
     diff = after.compare_to(before, "filename")
@@ -46,7 +49,7 @@ def test_timers_keep_every_value_in_about_4_bytes_and_summarise_them_exactly():
                 timers.add(name, v[i])
         return timers
 
-    size, blocks = _traced_growth(fill)
+    size, blocks = _traced_growth(fill, sys.modules[Timers.__module__])
     n_values = 3 * 20_000
     assert size <= 2 * 4 * n_values + 4096        # float32 with doubling capacity; a list of floats is 32 B/value
     assert blocks <= 30                            # a few arrays, not one object per value
