@@ -441,9 +441,11 @@ class VisualOdometry:
         clipped = float(np.count_nonzero(img >= self.config.mapping.saturation)) / img.size
         frame = _Frame(self._index, float(timestamp), img, pyr, depth, sharpness=sharp, color=color,
                        rectify_depth=self._rectifier.depth, clipped=clipped)
-        if self._corner_rectifier is not None and (not self._initialized or self._verifier is not None
-                                                   or self._lost_count > 0):
-            # a monocular start-up may begin (first frame, or a re-initialisation after a loss) or is on
+        if self._corner_rectifier is not None and (
+                not self._initialized or self._verifier is not None
+                or self._lost_count + 1 >= self.config.system.max_lost_frames):
+            # a monocular start-up may begin (the first frame, or the frame whose loss re-initialises the
+            # map: _process_tracking counts it lost first) or is on
             frame.corner_image = self._corner_rectifier(image)
         self._index += 1
         return frame
