@@ -16,6 +16,9 @@ Owns:
 * :func:`gaussian_blur` - separable Gaussian (mirror borders), the tracking images' anti-aliasing
   (optionally into a caller's buffer: the tracker reuses one per level).
 * :func:`sharpness` - mean squared gradient over the intensity variance (motion-blur score).
+* :func:`box_average2_u8` - a uint8 image's 2x2 box average as float32, the same values as
+  ``cv2.resize(img.astype(np.float32), ..., interpolation=cv2.INTER_AREA)`` in one pass (the rectifier's
+  path for cameras without distortion at half their resolution).
 * :func:`warmup` - compiles every kernel of this module on tiny inputs.
 
 The kernels named ``*_nb`` (:func:`gradient_stack_nb`, :func:`bspline_coefficients_nb`) are public for
@@ -31,7 +34,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["image_pyramid", "idepth_pyramid", "gradients", "intensity_gradient_stack", "bspline_coefficient_stack",
-           "bspline_horizon", "downsample_image", "downsample_idepth", "gaussian_blur", "gaussian_kernel", "sharpness", "warmup"]
+           "bspline_horizon", "downsample_image", "downsample_idepth", "gaussian_blur", "gaussian_kernel", "sharpness",
+           "box_average2_u8", "warmup"]
 
 
 # --------------------------------------------------------------------------- kernels
@@ -43,6 +47,20 @@ def _downsample_box(img, out):
         r1 = img[2 * y + 1]
         for x in range(w2):
             out[y, x] = 0.25 * (np.float64(r0[2 * x]) + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1])
+
+
+@njit(cache=True, nogil=True, fastmath=False)
+def _box_average2_u8(img, out):
+    """``out[y, x]`` = the mean of the 2x2 uint8 block: the integer sum is exact in float32 and the factor
+    0.25 a power of two, so this equals OpenCV's float area resize by 2 bit for bit (vectorised)."""
+    h, w = out.shape
+    for y in range(h):
+        r0 = img[2 * y]
+        r1 = img[2 * y + 1]
+        o = out[y]
+        for x in range(w):
+            o[x] = np.float32(np.int32(r0[2 * x]) + np.int32(r0[2 * x + 1]) + np.int32(r1[2 * x])
+                              + np.int32(r1[2 * x + 1])) * np.float32(0.25)
 
 
 @njit(cache=True, nogil=True, fastmath=False)
@@ -257,6 +275,21 @@ def downsample_image(img: np.ndarray) -> np.ndarray:
     return out
 
 
+def box_average2_u8(img: np.ndarray) -> np.ndarray:
+    """The 2x2 box average of a 2-D uint8 image as float32 ``(h // 2, w // 2)`` (an odd last row or column
+    is ignored): bit for bit ``cv2.resize(img.astype(np.float32), (w // 2, h // 2), interpolation=cv2.INTER_AREA)``,
+    in one pass without the full-size float copy (a third of the time for 640x480)."""
+    a = np.asarray(img)
+    if a.ndim != 2 or a.dtype != np.uint8:
+        raise ValueError(f"box_average2_u8 needs a 2-D uint8 image, got {a.dtype} of shape {a.shape}")
+    h, w = a.shape[0] // 2, a.shape[1] // 2
+    if h < 1 or w < 1:
+        raise ValueError(f"image of shape {a.shape} is too small to box-average by 2")
+    out = np.empty((h, w), np.float32)
+    _box_average2_u8(np.ascontiguousarray(a), out)
+    return out
+
+
 def image_pyramid(img: np.ndarray, levels: int) -> list[np.ndarray]:
     """``levels`` float32 images: level 0 is ``img`` (as float32), each next one a 2x2 box average."""
     if levels < 1:
@@ -407,6 +440,10 @@ def warmup() -> None:
     bspline_coefficient_stack(img)
     gaussian_blur(img, 0.7)
     sharpness(img)
+    u8 = np.zeros((4, 4), np.uint8)
+    box_average2_u8(u8)
+    u8.flags.writeable = False      # frames decoded by a reader may be read-only
+    box_average2_u8(u8)
     img_ro = img.copy()
     img_ro.flags.writeable = False  # pyramids handed to a TrackingReference become read-only
     gaussian_blur(img_ro, 0.7)

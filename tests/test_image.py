@@ -196,3 +196,29 @@ def test_bspline_coefficients_match_a_line_by_line_twin_bit_for_bit(shape):
     twin = np.array([[cols[x][y] for x in range(shape[1])] for y in range(shape[0])], np.float32)
     got = image.bspline_coefficient_stack(img)[:, :, 0]
     assert np.array_equal(got, twin)
+
+
+def test_box_average2_u8_is_opencvs_float_area_resize_bit_for_bit():
+    import cv2
+    from lite_vo.image import box_average2_u8
+    rng = np.random.default_rng(11)
+    for h, w in [(480, 640), (7, 9), (2, 2), (375, 1242)]:
+        img = rng.integers(0, 256, (h, w), dtype=np.uint8)
+        img[0, :] = 255                       # the extremes too
+        img[-1, :] = 0
+        even = img[: h // 2 * 2, : w // 2 * 2]
+        expected = cv2.resize(even.astype(np.float32), (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+        got = box_average2_u8(img)
+        assert got.dtype == np.float32 and got.shape == (h // 2, w // 2)
+        np.testing.assert_array_equal(got, expected)
+    # read-only input (a reader's frame) and a strided view give the same values
+    img = rng.integers(0, 256, (60, 80), dtype=np.uint8)
+    ro = img.copy()
+    ro.flags.writeable = False
+    np.testing.assert_array_equal(box_average2_u8(ro), box_average2_u8(img))
+    wide = np.repeat(img, 2, axis=1)[:, ::2]          # not contiguous
+    np.testing.assert_array_equal(box_average2_u8(wide), box_average2_u8(img))
+    with pytest.raises(ValueError, match="uint8"):
+        box_average2_u8(img.astype(np.float32))
+    with pytest.raises(ValueError, match="too small"):
+        box_average2_u8(np.zeros((1, 5), np.uint8))
