@@ -62,6 +62,10 @@ from .photometric import PhotometricCalibration, PhotometricMonitor, affine_tran
 log = logging.getLogger(__name__)
 
 
+#: a monocular start on a frame with more than this share of clipped pixels gets a warning (ICL with
+#: tools/augment.py's auto-exposure: the seeds that start 58-79 % clipped lose accuracy; README "Real cameras")
+BLOWN_OUT_START = 0.5
+
 #: the fields of a row of :attr:`VisualOdometry.depth_accuracy_series`
 DEPTH_ACCURACY_FIELDS = ("frame", "t", "scale", "density", "median_abs_rel_error", "within_5pct", "within_10pct",
                          "compared")
@@ -522,6 +526,11 @@ class VisualOdometry:
             mapper.initialize_from_depth(mf, frame.depth_m)
         else:
             mapper.initialize_random(mf)
+            if frame.clipped > BLOWN_OUT_START and self.pose_source == "estimate":
+                log.warning("the monocular start-up begins on frame %d with %.0f %% of its pixels clipped (auto-exposure "
+                            "still settling?): its corners and first map come from the rest of the image, which costs "
+                            "accuracy; start the run where the image is no longer blown out (--start-frame)",
+                            frame.index, 100 * frame.clipped)
         self._install_mapper(mapper, frame)
         self._verifier = None
         if not use_depth and self.config.system.verify_init and self.pose_source == "estimate":
@@ -541,7 +550,8 @@ class VisualOdometry:
         if event == "reinit":
             self.counts["reinit"] += 1
         return FrameResult(frame.index, frame.timestamp, T_world_cam.copy(), False,
-                           {"init": "depth" if use_depth else "random"}, mapped=True, event=event)
+                           {"init": "depth" if use_depth else "random", "clipped": frame.clipped}, mapped=True,
+                           event=event)
 
     def _process_tracking(self, frame: _Frame, t_start: float) -> FrameResult:
         if not self._initialized:

@@ -104,6 +104,30 @@ def test_frames_report_their_brightness_and_clipped_share():
     assert results[-1].quality["clipped"] > results[1].quality["clipped"]     # brighter: more clipped pixels
 
 
+def test_a_monocular_start_on_a_blown_out_frame_is_warned_about(caplog):
+    """A random start on a frame mostly clipped (auto-exposure still settling) loses accuracy (README "Real
+    cameras": the exposure seeds that start 58-79 % clipped): the run says so, with the share; a normal
+    start and a depth start do not warn. The init frame's quality carries the share either way."""
+    import logging
+    from lite_vo.system import BLOWN_OUT_START
+    room = naive_tracking.Room(seed=1, cell=0.05, depth=1.3, half_width=0.9, floor=0.5, ceiling=-0.6)
+    img, z = room.render(np.eye(4), INTR, supersample=2)
+    bright = np.clip(np.rint(3.0 * img + 120), 0, 255).astype(np.uint8)
+    share = float(np.mean(bright >= 250))
+    assert share > BLOWN_OUT_START
+    for image, init, warns in ((bright, "random", True), (img.astype(np.uint8), "random", False),
+                               (bright, "depth", False)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="lite_vo.system"):
+            with VisualOdometry(INTR, load_profile("phone", [f"system.init={init}"])) as vo:
+                r = vo.process(image, 0.0, depth=z)
+        assert r.event == "init" and r.quality["clipped"] == pytest.approx(np.mean(image >= 250), abs=1e-6)
+        said = [m for m in caplog.messages if "clipped" in m]
+        assert bool(said) == warns, (init, said)
+        if warns:
+            assert f"{100 * share:.0f} %" in said[0] and "--start-frame" in said[0]
+
+
 def _given_pose_run(affine: bool):
     """24 frames of the room, poses given (mapping only), random start: 8 frames at the first exposure
     (the map converges), then a strong exposure ramp."""
