@@ -66,13 +66,16 @@ def cpu_seconds(pid: int) -> float | None:
 
 
 def one_run(seq: Path, core: int | None, out: Path, init: str, mode: str, max_frames: int | None,
-            profile: str = "board", extra: tuple = ()) -> dict:
+            profile: str = "board", extra: tuple = (), code: Path | None = None) -> dict:
     """One run of the whole program; the numbers above. ``core``: pin to this core with one numba
-    thread (None: not pinned, numba's default threads). ``extra``: more ``lite-vo run`` arguments."""
+    thread (None: not pinned, numba's default threads). ``extra``: more ``lite-vo run`` arguments.
+    ``code``: run the packages of this folder instead of the installed ones (``tools/code_under_test.py``)."""
     if out.exists():
         shutil.rmtree(out)
     pin = ["taskset", "-c", str(core)] if core is not None else []
-    cmd = [*pin, *lite_vo_command(), "run", str(seq), "--profile", profile,
+    exe = ([sys.executable, str(ROOT / "tools" / "code_under_test.py"), str(code)] if code is not None
+           else lite_vo_command())
+    cmd = [*pin, *exe, "run", str(seq), "--profile", profile,
            "--init", init, "--mode", mode, "--out", str(out), "--force", "--quiet", *extra]
     if max_frames:
         cmd += ["--max-frames", str(max_frames)]

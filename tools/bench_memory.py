@@ -222,16 +222,6 @@ def child(what: str, seq: str, frames: int, checkpoints, trace: bool, workdir: P
 # driving (in the parent process)
 # ----------------------------------------------------------------------------------------------
 
-def _use_code(folder: str) -> None:
-    """Import lite_vo and ar_demo from ``folder`` instead of the (editable) installation."""
-    base = Path(folder).resolve()
-    if not (base / "lite_vo" / "profiles").exists() and (base / "profiles").is_dir():
-        (base / "lite_vo" / "profiles").symlink_to(base / "profiles")   # the installed package layout
-    sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__module__.lower()
-                        and "editable" not in getattr(f, "__name__", "").lower()]
-    sys.path.insert(0, str(base))
-
-
 def measure(what: str, seq: Path, frames: int, checkpoints, trace: bool, env_extra: dict, knobs=(),
             code: str | None = None) -> dict:
     with tempfile.TemporaryDirectory(prefix=f"bench_memory_{what}_") as tmp:
@@ -357,7 +347,8 @@ def main(argv=None) -> int:
 
     if args.child:
         if args.code:
-            _use_code(args.code)
+            from code_under_test import use_code
+            use_code(args.code)
         import lite_vo.session
         for k in args.knob:
             name, value = k.split("=", 1)

@@ -20,6 +20,11 @@ start-up and without the end-of-run exports. The median over
 
     python tools/bench_whole_program.py [--profiles phone,board,...] [--repeat 3] [--pin-core]
                                         [--synth-dir DIR] [--out benchmarks/whole_program.md]
+
+Before/after on this machine, whose speed drifts by 20-30 % within a day: ``--ab DIR`` alternates every run
+of the code in ``DIR`` (A: ``git archive <commit> lite_vo ar_demo profiles | tar -x -C DIR``, run through
+``tools/code_under_test.py``) with one of this tree (B) and adds the B/A ratios (default output
+``benchmarks/whole_program_ab.md``).
 """
 from __future__ import annotations
 
@@ -70,6 +75,10 @@ def fmt(v, d=2) -> str:
     return "-" if v is None else f"{v:.{d}f}"
 
 
+def _label(row: dict) -> str:
+    return f"`{row['profile']}`" + (f" ({row['code']})" if row.get("code") else "")
+
+
 def write_markdown(path: Path, res: dict) -> None:
     m = res["machine"]
     L = ["# Whole program per frame", "",
@@ -81,6 +90,9 @@ def write_markdown(path: Path, res: dict) -> None:
          f"{res['loadavg_before']} before, {res['loadavg_after']} after.", ""]
     if res.get("note"):
         L += [f"**Note:** {res['note']}", ""]
+    if res.get("ab"):
+        L += [f"**A/B:** rows marked (A) ran the code in `{res['ab']}` (through `tools/code_under_test.py`), rows "
+              "marked (B) this tree; each repeat ran A then B, so both saw the same hour of this machine.", ""]
     L += ["**wall** = `wall_s` / frames of `timing.json` (the whole program: decoding in the reader thread, "
           "rectification, tracking and mapping); **CPU** = `cpu_s` / frames of `timing.json`: the process's CPU "
           "time over the same span (all threads: with two numba threads it adds both cores); tracking = median of the per-frame "
@@ -93,7 +105,7 @@ def write_markdown(path: Path, res: dict) -> None:
     for row in res["rows"]:
         md = row["median"]
         err = row.get("error", {})
-        L.append(f"| {row['sequence']} | `{row['profile']}` | **{fmt(md['ms_per_frame'])}** | "
+        L.append(f"| {row['sequence']} | {_label(row)} | **{fmt(md['ms_per_frame'])}** | "
                  f"{fmt(md['loop_cpu_ms_per_frame'])} | {fmt(md['tracking_median_ms'])} | {fmt(md['mapping_median_ms'])} | "
                  f"{fmt(md['peak_rss_mb'], 0)} | {row['tracked']} | {fmt(err.get('ate_pct'))} | "
                  f"{fmt(err.get('rpe_pct'), 1)} / {fmt(err.get('rpe_deg_s'))} |")
@@ -103,9 +115,23 @@ def write_markdown(path: Path, res: dict) -> None:
     stages = [s for s in STAGE_ORDER if any(s in r["stages"] for r in res["rows"])]
     L += ["| sequence | profile | " + " | ".join(stages) + " |", "|---|---|" + "---|" * len(stages)]
     for row in res["rows"]:
-        L.append(f"| {row['sequence']} | `{row['profile']}` | "
+        L.append(f"| {row['sequence']} | {_label(row)} | "
                  + " | ".join(fmt(row["stages"].get(s)) for s in stages) + " |")
-    icl = [r for r in res["rows"] if r["sequence"].startswith("ICL") and r["profile"] == "phone"]
+    if res.get("ab"):
+        L += ["", "## B / A (this tree against the code in " + f"`{res['ab']}`)", "",
+              "Ratio of the medians; below 1: this tree is faster. Runs alternated A, B, A, B, ...", "",
+              "| sequence | profile | wall | CPU | tracking | mapping | peak RSS |", "|---|---|---|---|---|---|---|"]
+        a_rows = {(r["sequence"], r["profile"]): r for r in res["rows"] if r.get("code") == "A"}
+        for row in (r for r in res["rows"] if r.get("code") == "B"):
+            a = a_rows.get((row["sequence"], row["profile"]))
+            if a is None:
+                continue
+            ratio = [fmt(row["median"][k] / a["median"][k], 3) if row["median"].get(k) and a["median"].get(k) else "-"
+                     for k in ("ms_per_frame", "loop_cpu_ms_per_frame", "tracking_median_ms", "mapping_median_ms",
+                               "peak_rss_mb")]
+            L.append(f"| {row['sequence']} | `{row['profile']}` | " + " | ".join(ratio) + " |")
+    icl = [r for r in res["rows"] if r["sequence"].startswith("ICL") and r["profile"] == "phone"
+           and r.get("code", "B") == "B"]
     if icl:
         md = icl[0]["median"]
         L += ["", "## Targets (ICL, `phone`, sync)", "", "| what | measured | target | met |", "|---|---|---|---|"]
@@ -126,9 +152,17 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--pin-core", action="store_true", help="pin every run to core 0 with one numba thread")
     ap.add_argument("--synth-dir", type=Path, default=Path(tempfile.gettempdir()) / "lite_vo_bench")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "whole_program.md")
+    ap.add_argument("--out", type=Path, default=None, help="default: benchmarks/whole_program.md "
+                    "(benchmarks/whole_program_ab.md with --ab)")
+    ap.add_argument("--ab", type=Path, default=None, metavar="DIR",
+                    help="alternate every run with one of the code in DIR (before/after on the same machine)")
     ap.add_argument("--note", default="")
     args = ap.parse_args(argv)
+    if args.out is None:
+        args.out = ROOT / "benchmarks" / ("whole_program_ab.md" if args.ab else "whole_program.md")
+    if args.ab is not None and not (args.ab / "lite_vo").is_dir():
+        print(f"bench_whole_program: --ab {args.ab}: no lite_vo package there", file=sys.stderr)
+        return 1
     profiles = [p.strip() for p in args.profiles.split(",") if p.strip()]
     unknown = sorted(set(profiles) - set(PROFILES))
     if unknown:
@@ -140,28 +174,40 @@ def main(argv=None) -> int:
     want = {s.strip() for s in args.sequences.split(",")}
     seqs = [s for s, key in zip(sequences(args.synth_dir), ("icl", "synth", "kitti")) if key in want]
     subprocess.run([*lite_vo_command(), "warmup", "--quiet"], check=True)
+    codes = [(None, "")]
+    if args.ab is not None:
+        subprocess.run([sys.executable, str(ROOT / "tools" / "code_under_test.py"), str(args.ab), "warmup", "--quiet"],
+                       check=True)
+        codes = [(args.ab, "A"), (ROOT, "B")]    # both through tools/code_under_test.py: the same launcher
     load_before = " / ".join(f"{x:.2f}" for x in os.getloadavg())
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_wp_") as tmp:
         for name, seq, init in seqs:
             for prof in profiles:
-                runs = []
+                runs = {label: [] for _, label in codes}
+                err = {}
                 for i in range(args.repeat):
-                    out = Path(tmp) / f"{seq.name}_{prof}_{i}"
-                    runs.append(one_run(seq, 0 if args.pin_core else None, out, init, "sync", None, profile=prof))
-                    if i == 0:
-                        err = trajectory_error(seq, out, "se3" if init == "depth" else "sim3")
-                med = run_medians(runs, skip=("stages",))
-                rows.append({"sequence": name, "profile": prof, "runs": runs, "median": med,
-                             "stages": runs[0]["stages"], "error": {k: v for k, v in err.items() if k != "raw"},
-                             "tracked": f"{runs[0]['tracked']}/{runs[0]['frames_in']}"})
-                print(f"{name} {prof}: {med['ms_per_frame']:.2f} ms/frame wall, {fmt(med['loop_cpu_ms_per_frame'])} CPU, "
-                      f"tracking {med['tracking_median_ms']:.2f}, mapping {med['mapping_median_ms']:.2f}", flush=True)
+                    for code, label in codes:
+                        out = Path(tmp) / f"{seq.name}_{prof}_{label}{i}"
+                        runs[label].append(one_run(seq, 0 if args.pin_core else None, out, init, "sync", None,
+                                                   profile=prof, code=code))
+                        if i == 0:
+                            err[label] = trajectory_error(seq, out, "se3" if init == "depth" else "sim3")
+                for _, label in codes:
+                    rr = runs[label]
+                    med = run_medians(rr, skip=("stages",))
+                    rows.append({"sequence": name, "profile": prof, "code": label, "runs": rr, "median": med,
+                                 "stages": rr[0]["stages"],
+                                 "error": {k: v for k, v in err[label].items() if k != "raw"},
+                                 "tracked": f"{rr[0]['tracked']}/{rr[0]['frames_in']}"})
+                    print(f"{name} {prof}{' ' + label if label else ''}: {med['ms_per_frame']:.2f} ms/frame wall, "
+                          f"{fmt(med['loop_cpu_ms_per_frame'])} CPU, tracking {med['tracking_median_ms']:.2f}, "
+                          f"mapping {med['mapping_median_ms']:.2f}", flush=True)
     shown = [a for a in (sys.argv[1:] if argv is None else argv)]
     res = {"command": " ".join(["python tools/bench_whole_program.py", *shown]), "pin_core": args.pin_core,
            "repeat": args.repeat, "loadavg_before": load_before,
            "loadavg_after": " / ".join(f"{x:.2f}" for x in os.getloadavg()), "machine": machine(),
-           "note": args.note, "targets": TARGETS, "rows": rows,
+           "note": args.note, "targets": TARGETS, "rows": rows, "ab": str(args.ab) if args.ab else None,
            "date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())}
     write_markdown(args.out, res)
     print(f"wrote {args.out}")
