@@ -349,6 +349,7 @@ class Session:
 
 
 _EVENT_TEXT = {"init": "map initialised ({init}) at frame {index}",
+               "waiting": "start-up waits: frame {index} is mostly clipped (system.start_max_clipped)",
                "bootstrap": "start-up: map rebuilt from two views at frame {index}; earlier poses corrected",
                "reinit": "map re-initialised at frame {index}",
                "lost": "tracking lost at frame {index}",
@@ -357,7 +358,7 @@ _EVENT_TEXT = {"init": "map initialised ({init}) at frame {index}",
 
 def _log_event(res: FrameResult, events: list) -> None:
     """One INFO line per event (a run of lost frames is one line)."""
-    if res.event == "lost" and len(events) > 1 and events[-2]["event"] == "lost":
+    if res.event in ("lost", "waiting") and len(events) > 1 and events[-2]["event"] == res.event:
         return
     text = _EVENT_TEXT.get(res.event, res.event + " at frame {index}")
     log.info(text.format(index=res.index, init=(res.quality or {}).get("init", "?")))

@@ -288,7 +288,7 @@ class ProgressSink(OutputSink):
         self._progress = Progress(info.frames_total, info.name, stream=self.stream, every_s=self.every_s)
 
     def on_frame(self, event: FrameEvent) -> None:
-        lost = bool(event.result.lost)
+        lost = bool(event.result.lost) and event.result.event != "waiting"   # waiting: skipped before the start
         self._lost += lost
         self._progress.update(1, note=f"{self._lost} lost" if lost or self._progress.done % 10 == 9 else None)
 

@@ -80,7 +80,8 @@ class FrameResult:
     lost: bool
     quality: dict = field(default_factory=dict)
     mapped: bool = False
-    event: str = ""  # "init", "bootstrap" (two-view start-up), "reinit" (after a loss), "lost", "recovered",
+    event: str = ""  # "init", "waiting" (start-up skips a blown-out frame), "bootstrap" (two-view start-up),
+    #                  "reinit" (after a loss), "lost", "recovered",
     #                  "relocalised" (re-tracked against a stored keyframe: quality["keyframe"]) or ""
     corrections: dict = field(default_factory=dict)  # earlier frame index -> corrected T_world_cam or None
     image: np.ndarray | None = field(default=None, repr=False)  # float32 grey at mapping resolution
@@ -254,8 +255,10 @@ class VisualOdometry:
         self._recent_affine: dict[int, tuple] = {}   # frame index -> brightness, for the bootstrap replay
         self._index = 0
         self._t0: float | None = None
+        self._wait_t0: float | None = None   # first frame a monocular start skipped (system.start_max_clipped)
         self._last_ts: float | None = None
-        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "reinit": 0, "bootstrap": 0, "mapped": 0,
+        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "waited": 0, "reinit": 0, "bootstrap": 0,
+                       "mapped": 0,
                        "relocalised": 0}
         self._relocalizer = Relocalizer(config.tracking, self._tracker, res.pyramid_levels, self.track_level) \
             if config.tracking.relocalise else None
@@ -401,7 +404,8 @@ class VisualOdometry:
             "tracking": Timers.summary(self.timers.values("tracking")),
             "mapping": Timers.summary(self.timers.values("mapping")),
             "stages": stages,
-            "frames": {k: int(self.counts[k]) for k in ("in", "tracked", "lost", "dropped")},
+            "frames": {k: int(self.counts[k]) for k in ("in", "tracked", "lost", "dropped", "waited")
+                       if k != "waited" or self.counts[k]},     # waited: only when a start waited (system.start_max_clipped)
             "relocalised": int(self.counts["relocalised"]),
             # wide basin: frames on which the motion hypotheses were tried, and which guess won
             "hypotheses": {"tried": int(self._tracker.hypothesis_frames),
@@ -553,7 +557,23 @@ class VisualOdometry:
                            {"init": "depth" if use_depth else "random", "clipped": frame.clipped}, mapped=True,
                            event=event)
 
+    def _waits_for_exposure(self, frame: _Frame) -> bool:
+        """Whether a monocular start skips this frame: too much of it clipped (``system.start_max_clipped``)
+        while the wait (``system.start_max_wait_s``, from the first frame) lasts."""
+        sc = self.config.system
+        monocular = sc.init == "random" or (sc.init == "auto" and frame.depth_native is None)
+        if not (monocular and sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped):
+            return False
+        if self._wait_t0 is None:
+            self._wait_t0 = frame.timestamp
+        return frame.timestamp - self._wait_t0 < sc.start_max_wait_s
+
     def _process_tracking(self, frame: _Frame, t_start: float) -> FrameResult:
+        if not self._initialized and self._waits_for_exposure(frame):
+            self.counts["waited"] += 1
+            self._t0 = None          # the run's start-up phase (map_every_startup) begins with the first used frame
+            self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
+            return FrameResult(frame.index, frame.timestamp, None, True, {"clipped": frame.clipped}, event="waiting")
         if not self._initialized:
             result = self._initialize(frame, np.eye(4), "init")
             self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)

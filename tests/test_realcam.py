@@ -128,6 +128,38 @@ def test_a_monocular_start_on_a_blown_out_frame_is_warned_about(caplog):
             assert f"{100 * share:.0f} %" in said[0] and "--start-frame" in said[0]
 
 
+def test_a_monocular_start_can_wait_for_the_exposure_to_settle():
+    """system.start_max_clipped: frames more clipped than that are skipped (no pose, event "waiting",
+    counted as waited, not lost) until one is usable or start_max_wait_s has passed; off by default, and a
+    depth start never waits."""
+    room = naive_tracking.Room(seed=1, cell=0.05, depth=1.3, half_width=0.9, floor=0.5, ceiling=-0.6)
+    frames = []
+    for k in range(6):
+        T = exp_se3(np.array([0.004 * k, 0.002 * k, 0.0, 0.0, 0.003 * k, 0.0]))
+        img, z = room.render(T, INTR, supersample=2)
+        if k < 3:                                   # blown out while the exposure settles
+            img = np.clip(np.rint(3.0 * img + 120), 0, 255)
+        frames.append((img.astype(np.uint8), z))
+
+    def run(*overrides):
+        with VisualOdometry(INTR, load_profile("phone", list(overrides))) as vo:
+            res = [vo.process(img, k / 30.0, depth=z) for k, (img, z) in enumerate(frames)]
+            return res, vo.timing()["frames"]
+
+    res, counts = run("system.init=random", "system.start_max_clipped=0.5")
+    assert [r.event for r in res[:4]] == ["waiting", "waiting", "waiting", "init"]
+    assert all(r.lost and r.T_world_cam is None for r in res[:3]) and res[3].T_world_cam is not None
+    assert res[0].quality["clipped"] > 0.5 >= res[3].quality["clipped"]
+    assert counts["waited"] == 3 and counts["lost"] == 0
+    # the wait is bounded: with 50 ms the third blown-out frame (t = 67 ms) starts the map anyway
+    res, counts = run("system.init=random", "system.start_max_clipped=0.5", "system.start_max_wait_s=0.05")
+    assert [r.event for r in res[:3]] == ["waiting", "waiting", "init"] and counts["waited"] == 2
+    # off by default; a depth start does not wait
+    for overrides in (("system.init=random",), ("system.init=depth", "system.start_max_clipped=0.5")):
+        res, counts = run(*overrides)
+        assert res[0].event == "init" and "waited" not in counts      # timing.json's frames as before
+
+
 def _given_pose_run(affine: bool):
     """24 frames of the room, poses given (mapping only), random start: 8 frames at the first exposure
     (the map converges), then a strong exposure ramp."""
