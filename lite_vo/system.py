@@ -258,8 +258,7 @@ class VisualOdometry:
         self._wait_t0: float | None = None   # first frame a monocular start skipped (system.start_max_clipped)
         self._last_ts: float | None = None
         self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "waited": 0, "reinit": 0, "bootstrap": 0,
-                       "mapped": 0,
-                       "relocalised": 0}
+                       "mapped": 0, "relocalised": 0}
         self._relocalizer = Relocalizer(config.tracking, self._tracker, res.pyramid_levels, self.track_level) \
             if config.tracking.relocalise else None
         self._prev_depth_frame: _Frame | None = None
@@ -533,7 +532,8 @@ class VisualOdometry:
             if frame.clipped > BLOWN_OUT_START and self.pose_source == "estimate":
                 log.warning("the monocular start-up begins on frame %d with %.0f %% of its pixels clipped (auto-exposure "
                             "still settling?): its corners and first map come from the rest of the image, which costs "
-                            "accuracy; start the run where the image is no longer blown out (--start-frame)",
+                            "accuracy; start the run where the image is no longer blown out (--start-frame, or let the "
+                            "start-up wait: --set system.start_max_clipped=0.5)",
                             frame.index, 100 * frame.clipped)
         self._install_mapper(mapper, frame)
         self._verifier = None
@@ -559,7 +559,7 @@ class VisualOdometry:
 
     def _waits_for_exposure(self, frame: _Frame) -> bool:
         """Whether a monocular start skips this frame: too much of it clipped (``system.start_max_clipped``)
-        while the wait (``system.start_max_wait_s``, from the first frame) lasts."""
+        while the wait (``system.start_max_wait_s`` from the first skipped frame) lasts."""
         sc = self.config.system
         monocular = sc.init == "random" or (sc.init == "auto" and frame.depth_native is None)
         if not (monocular and sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped):
