@@ -515,8 +515,7 @@ class VisualOdometry:
 
     def _initialize(self, frame: _Frame, T_world_cam: np.ndarray, event: str) -> FrameResult:
         """(Re-)initialise the map in ``frame`` (depth image or random depth) with a new mapper."""
-        init = self.config.system.init
-        use_depth = init == "depth" or (init == "auto" and frame.depth_m is not None)
+        use_depth = self._depth_start(frame)
         if use_depth and frame.depth_m is None:
             raise InputError("init=depth needs a depth image for the first frame (the sequence has none)")
         frame.T_world_cam = T_world_cam
@@ -557,12 +556,16 @@ class VisualOdometry:
                            {"init": "depth" if use_depth else "random", "clipped": frame.clipped}, mapped=True,
                            event=event)
 
+    def _depth_start(self, frame: _Frame) -> bool:
+        """Whether a map started in ``frame`` starts from its depth image (``system.init``; ``auto``: when it has one)."""
+        init = self.config.system.init
+        return init == "depth" or (init == "auto" and frame.depth_native is not None)
+
     def _waits_for_exposure(self, frame: _Frame) -> bool:
         """Whether a monocular start skips this frame: too much of it clipped (``system.start_max_clipped``)
         while the wait (``system.start_max_wait_s`` from the first skipped frame) lasts."""
         sc = self.config.system
-        monocular = sc.init == "random" or (sc.init == "auto" and frame.depth_native is None)
-        if not (monocular and sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped):
+        if self._depth_start(frame) or not (sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped):
             return False
         if self._wait_t0 is None:
             self._wait_t0 = frame.timestamp
