@@ -70,9 +70,10 @@ class SystemConfig:
     seed: int = param(0, "seed for random initialisation", 0, 2**31 - 1)
     max_lost_frames: int = param(30, "re-initialise the map after this many consecutive lost frames", 1, 10000)
     realtime_speed: float = param(1.0, "realtime mode: playback speed relative to the timestamps", 0.01, 100.0)
-    start_max_clipped: float = param(1.0, "a monocular start waits for a frame with at most this share of its pixels "
+    start_max_clipped: float = param(0.4, "a monocular start waits for a frame with at most this share of its pixels "
                                      "clipped (auto-exposure still settling), at most start_max_wait_s; the frames "
-                                     "before get no pose (1 = off: start on the first frame)", 0.0, 1.0)
+                                     "before are tracked backwards once the start-up is resolved (1 = off: start on "
+                                     "the first frame)", 0.0, 1.0)
     start_max_wait_s: float = param(2.0, "longest wait of start_max_clipped (then the start-up begins anyway)", 0.0, 600.0)
     verify_init: bool = param(True, "check a random initialisation against two-view geometry; re-initialise from two views when they disagree")
     verify_features: int = param(300, "corners followed by Lucas-Kanade for the check", 20, 5000)

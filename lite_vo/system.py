@@ -45,7 +45,7 @@ import cv2
 import numba
 import numpy as np
 
-from .bootstrap import InitVerifier
+from .bootstrap import InitVerifier, patch_affine
 from .camera import Camera, PinholeIntrinsics
 from .config import VOConfig, tracking_level
 from .errors import InputError, LiteVOError
@@ -63,7 +63,8 @@ log = logging.getLogger(__name__)
 
 
 #: a monocular start on a frame with more than this share of clipped pixels gets a warning (ICL with
-#: tools/augment.py's auto-exposure: the seeds that start 58-79 % clipped lose accuracy; README "Real cameras")
+#: tools/augment.py's auto-exposure: the seeds that start 58-79 % clipped lose accuracy; README "Real cameras");
+#: with the start-up's wait on (system.start_max_clipped) that happens only when the wait ran out
 BLOWN_OUT_START = 0.5
 
 #: the fields of a row of :attr:`VisualOdometry.depth_accuracy_series`
@@ -183,6 +184,44 @@ def _evaluate_depth(frame: _Frame, idepth: np.ndarray, valid: np.ndarray, monocu
     return {"frame": frame.index, "t": t, "scale": scale, **acc}
 
 
+def warp_idepth(idepth: np.ndarray, idepth_var: np.ndarray, valid: np.ndarray, T_dst_src: np.ndarray,
+                intrinsics: PinholeIntrinsics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An inverse-depth map moved into another view of the same camera (``T_dst_src``): every valid pixel
+    is projected to the nearest pixel there, the nearest point wins where several land, its variance is
+    scaled as the inverse depth (``var (rho_dst / rho_src)^4``). Returns (idepth, idepth_var, valid),
+    0 where nothing landed."""
+    h, w = idepth.shape
+    v, u = np.nonzero(np.asarray(valid) & (idepth > 0) & np.isfinite(idepth))
+    rho = idepth[v, u].astype(np.float64)
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    P = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(rho)]) / rho
+    Q = T_dst_src[:3, :3] @ P + T_dst_src[:3, 3:4]
+    z = Q[2]
+    front = z > 1e-9
+    z_safe = np.where(front, z, 1.0)
+    ud = np.rint(fx * Q[0] / z_safe + cx).astype(np.int64)
+    vd = np.rint(fy * Q[1] / z_safe + cy).astype(np.int64)
+    keep = front & (ud >= 0) & (ud < w) & (vd >= 0) & (vd < h)
+    rho_d = 1.0 / z_safe[keep]
+    var_d = idepth_var[v[keep], u[keep]] * (rho_d / rho[keep]) ** 4
+    pix = vd[keep] * w + ud[keep]
+    order = np.lexsort((-rho_d, pix))                  # per pixel, the nearest first
+    first = order[np.unique(pix[order], return_index=True)[1]]
+    out_rho = np.zeros(h * w, np.float32)
+    out_var = np.zeros(h * w, np.float32)
+    out_valid = np.zeros(h * w, bool)
+    out_rho[pix[first]] = rho_d[first]
+    out_var[pix[first]] = var_d[first]
+    out_valid[pix[first]] = True
+    return out_rho.reshape(h, w), out_var.reshape(h, w), out_valid.reshape(h, w)
+
+
+# the back-fill's brightness, measured from frame to frame on a mostly clipped image, drifts by a few
+# per cent a frame: a tracked estimate this close to it is kept, a collapsed one (gain 0.1-0.8) is not
+BACKFILL_GAIN_TOL = 0.3
+BACKFILL_GREY_TOL = 30.0
+
+
 def _brightness_disagrees(estimated: tuple, measured: tuple, gain_tol: float = 0.1, grey_tol: float = 10.0) -> bool:
     """Whether a tracked brightness change ``(a, b)`` is far from a measured one: gains more than
     ``gain_tol`` apart (relative) or mid-grey (128) mapped more than ``grey_tol`` grey levels apart."""
@@ -256,8 +295,16 @@ class VisualOdometry:
         self._index = 0
         self._t0: float | None = None
         self._wait_t0: float | None = None   # first frame a monocular start skipped (system.start_max_clipped)
+        # the skipped frames (index, timestamp, tracking levels of the pyramid, sharpness): tracked backwards
+        # against the map once the start-up is resolved (_backfill_waited), then dropped
+        self._waited: list[tuple] = []
+        self._start_pose: np.ndarray | None = None   # the first map's pose and brightness (the back-fill starts there)
+        self._start_affine: tuple = (1.0, 0.0)
+        self._start_pyramid: list | None = None  # its image pyramid (only while skipped frames wait for a pose)
+        self._late_corrections: dict = {}    # poses of earlier frames found while processing this one
         self._last_ts: float | None = None
-        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "waited": 0, "reinit": 0, "bootstrap": 0,
+        self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "waited": 0, "backfilled": 0, "reinit": 0,
+                       "bootstrap": 0,
                        "mapped": 0, "relocalised": 0}
         self._relocalizer = Relocalizer(config.tracking, self._tracker, res.pyramid_levels, self.track_level) \
             if config.tracking.relocalise else None
@@ -320,6 +367,9 @@ class VisualOdometry:
             result = self._process_given_pose(frame, T_world_cam, t_start)
         else:
             result = self._process_tracking(frame, t_start)
+        if self._late_corrections:
+            result.corrections = {**self._late_corrections, **result.corrections}
+            self._late_corrections = {}
         result.image = frame.image
         return result
 
@@ -403,8 +453,9 @@ class VisualOdometry:
             "tracking": Timers.summary(self.timers.values("tracking")),
             "mapping": Timers.summary(self.timers.values("mapping")),
             "stages": stages,
-            "frames": {k: int(self.counts[k]) for k in ("in", "tracked", "lost", "dropped", "waited")
-                       if k != "waited" or self.counts[k]},     # waited: only when a start waited (system.start_max_clipped)
+            # waited / backfilled: only when a start waited (system.start_max_clipped)
+            "frames": {k: int(self.counts[k]) for k in ("in", "tracked", "lost", "dropped", "waited", "backfilled")
+                       if k not in ("waited", "backfilled") or self.counts["waited"]},
             "relocalised": int(self.counts["relocalised"]),
             # wide basin: frames on which the motion hypotheses were tried, and which guess won
             "hypotheses": {"tried": int(self._tracker.hypothesis_frames),
@@ -531,8 +582,8 @@ class VisualOdometry:
             if frame.clipped > BLOWN_OUT_START and self.pose_source == "estimate":
                 log.warning("the monocular start-up begins on frame %d with %.0f %% of its pixels clipped (auto-exposure "
                             "still settling?): its corners and first map come from the rest of the image, which costs "
-                            "accuracy; start the run where the image is no longer blown out (--start-frame, or let the "
-                            "start-up wait: --set system.start_max_clipped=0.5)",
+                            "accuracy; start the run where the image is no longer blown out (--start-frame), or let the "
+                            "start-up wait for it (system.start_max_clipped, system.start_max_wait_s)",
                             frame.index, 100 * frame.clipped)
         self._install_mapper(mapper, frame)
         self._verifier = None
@@ -543,6 +594,11 @@ class VisualOdometry:
                                           self._corner_rectifier.intrinsics if fine else None, frame.corner_image)
             self._recent_affine[frame.index] = frame.affine
         frame.corner_image = None
+        if event == "init":
+            self._start_pose, self._start_affine = T_world_cam.copy(), frame.affine
+            self._start_pyramid = frame.pyramid if self._waited else None
+        if self._verifier is None:
+            self._waited = []       # no start-up to resolve (verify_init off): the skipped frames keep no pose
         self._initialized = True
         self.metric = bool(use_depth)
         self._last_pose = T_world_cam.copy()
@@ -574,6 +630,9 @@ class VisualOdometry:
     def _process_tracking(self, frame: _Frame, t_start: float) -> FrameResult:
         if not self._initialized and self._waits_for_exposure(frame):
             self.counts["waited"] += 1
+            lvl = self.track_level      # only the levels tracking reads are kept
+            self._waited.append((frame.index, frame.timestamp, [None] * lvl + list(frame.pyramid[lvl:]),
+                                 frame.sharpness))
             self._t0 = None          # the run's start-up phase (map_every_startup) begins with the first used frame
             self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
             return FrameResult(frame.index, frame.timestamp, None, True, {"clipped": frame.clipped}, event="waiting")
@@ -630,6 +689,8 @@ class VisualOdometry:
             frame.corner_image = None       # followed: not kept with the frame
             if decision is not None:
                 self._verifier = None
+                if isinstance(decision, str) and self._waited:     # the random map stays: its world and scale
+                    self._late_corrections.update(self._backfill_waited())
                 if not isinstance(decision, str):
                     result = self._apply_bootstrap(decision, frame, quality)
                     self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
@@ -758,11 +819,73 @@ class VisualOdometry:
             T = boot.T_j_init.get(idx)
             corrections[idx] = None if T is None else project_to_se3(boot_world @ inverse_se3(T))
         self.keyframes.apply_corrections(corrections)
+        if self._waited:                # the frames skipped before the start-up, in the two-view map's world
+            self._start_pose, self._start_affine = boot_world, aff0
+            corrections.update(self._backfill_waited())
         quality = {**quality, "init": "bootstrap", "reason": boot.reason}
         idepth, _, valid = mapper.current()
         self._record_depth_accuracy(frame, idepth, valid)
         return FrameResult(frame.index, frame.timestamp, T_world_cur.copy(), False, quality, mapped=True,
                            event="bootstrap", corrections=corrections)
+
+    def _backfill_waited(self) -> dict:
+        """Poses for the frames a monocular start skipped (``system.start_max_clipped``), once the start-up
+        is resolved. The current map is warped into the start-up's first frame (its pose and brightness
+        are known; the skipped frames are its neighbours, mostly clipped in the same places) and each
+        skipped frame is tracked against it, newest first, from the previous one's pose and brightness
+        (with the backward motion of the last two) until two in a row are lost. The brightness is also
+        measured from each frame to the later one (patch means: on frames this clipped a free gain can
+        collapse towards a flat bright image); a tracked estimate far from it is tracked again holding
+        it. Returns ``{index: T_world_cam}``; the state for the frames to come is left as it was."""
+        waited, self._waited = self._waited, []
+        start, self._start_pyramid = self._start_pyramid, None
+        cur = self._current_reference()
+        if cur is None or self._start_pose is None or start is None:
+            return {}
+        m = cur.map
+        T_start_cur = inverse_se3(self._start_pose) @ cur.T_world_ref
+        idepth, var, valid = warp_idepth(m.idepth_raw, m.idepth_var_raw, m.valid, T_start_cur, self.map_intrinsics)
+        tref = TrackingReference.build(start, idepth, var, valid, self.map_intrinsics, -1,
+                                       smooth_sigma=self.config.tracking.smooth_sigma, min_level=self.track_level,
+                                       point_stride=self.config.tracking.point_stride,
+                                       coarse_point_stride=self.config.tracking.coarse_point_stride)
+        tc = self.config.tracking
+        ref_affine = self._start_affine
+        T_world_ref = self._start_pose
+        pose_ref, affine, step = np.eye(4), ref_affine, np.eye(4)       # pose in the start frame
+        h, w = start[self.track_level].shape
+        gy, gx = np.mgrid[4:h - 4:4, 4:w - 4:4]
+        grid = np.column_stack([gx.ravel(), gy.ravel()]).astype(np.float32)
+        later = start[self.track_level]
+        out: dict = {}
+        misses = 0
+        for index, _, pyramid, sharpness in reversed(waited):
+            image = pyramid[self.track_level]
+            rel = patch_affine(later, image, grid, grid, tc.saturation)
+            later = image
+            measured = None if rel is None else compose_affine(affine, rel)
+            sigma = self._monitor.tracking_sigma(tc.sigma_i, tc.noise_sigma_gain, sharpness)
+            guess = pose_ref @ step
+            first = affine_transfer(ref_affine, affine if measured is None else measured)
+            tr = self._tracker.track(tref, pyramid, guess, first, sigma)
+            if measured is not None and _brightness_disagrees(tr.affine, first, BACKFILL_GAIN_TOL, BACKFILL_GREY_TOL):
+                tr = self._tracker.track(tref, pyramid, guess, first, sigma, fix_affine=True)
+            if tr.lost or not np.all(np.isfinite(tr.T_ref_new)):
+                misses += 1
+                if misses == 2:
+                    break
+                if measured is not None:
+                    affine = measured
+                continue
+            misses = 0
+            T = project_to_se3(tr.T_ref_new)
+            step = inverse_se3(pose_ref) @ T
+            pose_ref, affine = T, compose_affine(ref_affine, tr.affine)
+            out[index] = project_to_se3(T_world_ref @ T)
+        log.info("the start-up skipped %d blown-out frames; %d of them got a pose, tracked backwards against the map",
+                 len(waited), len(out))
+        self.counts["backfilled"] += len(out)
+        return out
 
     def _process_given_pose(self, frame: _Frame, T_world_cam: np.ndarray, t_start: float) -> FrameResult:
         T_world_cam = np.asarray(T_world_cam, dtype=np.float64)

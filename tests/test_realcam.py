@@ -106,8 +106,9 @@ def test_frames_report_their_brightness_and_clipped_share():
 
 def test_a_monocular_start_on_a_blown_out_frame_is_warned_about(caplog):
     """A random start on a frame mostly clipped (auto-exposure still settling) loses accuracy (README "Real
-    cameras": the exposure seeds that start 58-79 % clipped): the run says so, with the share; a normal
-    start and a depth start do not warn. The init frame's quality carries the share either way."""
+    cameras": the exposure seeds that start 58-79 % clipped): when the start-up does not wait for a better
+    frame (system.start_max_clipped=1, or its wait ran out) the run says so, with the share; a normal start
+    and a depth start do not warn. The init frame's quality carries the share either way."""
     import logging
     from lite_vo.system import BLOWN_OUT_START
     room = naive_tracking.Room(seed=1, cell=0.05, depth=1.3, half_width=0.9, floor=0.5, ceiling=-0.6)
@@ -119,19 +120,19 @@ def test_a_monocular_start_on_a_blown_out_frame_is_warned_about(caplog):
                                (bright, "depth", False)):
         caplog.clear()
         with caplog.at_level(logging.WARNING, logger="lite_vo.system"):
-            with VisualOdometry(INTR, load_profile("phone", [f"system.init={init}"])) as vo:
+            with VisualOdometry(INTR, load_profile("phone", [f"system.init={init}", "system.start_max_wait_s=0"])) as vo:
                 r = vo.process(image, 0.0, depth=z)
         assert r.event == "init" and r.quality["clipped"] == pytest.approx(np.mean(image >= 250), abs=1e-6)
         said = [m for m in caplog.messages if "clipped" in m]
         assert bool(said) == warns, (init, said)
         if warns:
-            assert f"{100 * share:.0f} %" in said[0] and "--start-frame" in said[0]
+            assert f"{100 * share:.0f} %" in said[0] and "--start-frame" in said[0] and "start_max_wait_s" in said[0]
 
 
 def test_a_monocular_start_can_wait_for_the_exposure_to_settle():
-    """system.start_max_clipped: frames more clipped than that are skipped (no pose, event "waiting",
-    counted as waited, not lost) until one is usable or start_max_wait_s has passed; off by default, and a
-    depth start never waits."""
+    """system.start_max_clipped: frames more clipped than that are skipped (no pose yet, event "waiting",
+    counted as waited, not lost) until one is usable or start_max_wait_s has passed; on by default (0.4),
+    1 turns it off, and a depth start never waits."""
     room = naive_tracking.Room(seed=1, cell=0.05, depth=1.3, half_width=0.9, floor=0.5, ceiling=-0.6)
     frames = []
     for k in range(6):
@@ -146,16 +147,16 @@ def test_a_monocular_start_can_wait_for_the_exposure_to_settle():
             res = [vo.process(img, k / 30.0, depth=z) for k, (img, z) in enumerate(frames)]
             return res, vo.timing()["frames"]
 
-    res, counts = run("system.init=random", "system.start_max_clipped=0.5")
+    res, counts = run("system.init=random")
     assert [r.event for r in res[:4]] == ["waiting", "waiting", "waiting", "init"]
     assert all(r.lost and r.T_world_cam is None for r in res[:3]) and res[3].T_world_cam is not None
-    assert res[0].quality["clipped"] > 0.5 >= res[3].quality["clipped"]
+    assert res[0].quality["clipped"] > load_profile("phone").system.start_max_clipped >= res[3].quality["clipped"]
     assert counts["waited"] == 3 and counts["lost"] == 0
     # the wait is bounded: with 50 ms the third blown-out frame (t = 67 ms) starts the map anyway
-    res, counts = run("system.init=random", "system.start_max_clipped=0.5", "system.start_max_wait_s=0.05")
+    res, counts = run("system.init=random", "system.start_max_wait_s=0.05")
     assert [r.event for r in res[:3]] == ["waiting", "waiting", "init"] and counts["waited"] == 2
-    # off by default; a depth start does not wait
-    for overrides in (("system.init=random",), ("system.init=depth", "system.start_max_clipped=0.5")):
+    # 1 turns it off; a depth start does not wait
+    for overrides in (("system.init=random", "system.start_max_clipped=1"), ("system.init=depth",)):
         res, counts = run(*overrides)
         assert res[0].event == "init" and "waited" not in counts      # timing.json's frames as before
 

@@ -82,8 +82,10 @@ def run(args) -> int:
                        map_voxel=args.map_voxel, estimate_vignette=args.estimate_vignette)
     c = res.info["frames"]
     skipped = f", {c['skipped']} unreadable skipped" if c.get("skipped") else ""
-    skipped += f", {c['waited']} blown out before the start" if c.get("waited") else ""
-    later = c.get("posed", c["tracked"]) - c["tracked"]
+    back = c.get("backfilled", 0)
+    if c.get("waited"):
+        skipped += f", {c['waited']} blown out before the start ({back} of them posed afterwards)"
+    later = c.get("posed", c["tracked"]) - c["tracked"] - back
     later = f" ({later} of them posed later by the two-view start-up)" if later > 0 else ""
     msg = (f"{seq.name}: {res.status}; {c['tracked']} of {c['in']} frames tracked, {c['lost']} lost{later}, "
            f"{res.timing['frames']['dropped']} dropped{skipped}; tracking {res.timing['tracking']['median']:.1f} ms, "

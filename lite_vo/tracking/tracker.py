@@ -381,10 +381,12 @@ class Tracker:
         res.total_ms = (time.perf_counter() - t_start) * 1e3
         return res
 
-    def lost_reason(self, res: TrackingResult, finite: bool = True, check_residual: bool = True) -> str:
+    def lost_reason(self, res: TrackingResult, finite: bool = True, check_residual: bool = True,
+                    check_gain: bool = True) -> str:
         """The lost test of a result with points on the finest level: the first failed check, or '' when
         it is tracked. ``finite``: whether the pose came out finite; ``check_residual=False`` leaves the
-        residual spread out (the caller knows the map's residuals are large by nature)."""
+        residual spread out (the caller knows the map's residuals are large by nature); ``check_gain=False``
+        the gain's bound (the caller measured the brightness change and held it)."""
         c = self.config
         if not finite:
             return "non-finite pose"
@@ -394,6 +396,6 @@ class Tracker:
             return "too few good residuals"
         if check_residual and c.max_abs_residual > 0 and not res.residual_spread <= c.max_abs_residual:
             return "residual too large"
-        if not 1.0 / c.max_gain_change <= res.affine[0] <= c.max_gain_change:
+        if check_gain and not 1.0 / c.max_gain_change <= res.affine[0] <= c.max_gain_change:
             return "implausible brightness change"
         return ""
