@@ -74,6 +74,23 @@ def test_augment_exposure_range_and_truth_file(tmp_path):
     assert (tmp_path / "dst" / "groundtruth.txt").exists()
 
 
+def test_augment_writes_the_true_vignette_for_photometric_correction(tmp_path):
+    """--vignette: DST/true_vignette/vignette.png holds the fall-off the images got, in the format
+    --photometric reads; correcting with it gives back the unvignetted image (to the 8-bit rounding)."""
+    from lite_vo.photometric import load_photometric
+    decoded = _colour_sequence(tmp_path / "src", 1)
+    aug = _augment_module()
+    assert aug.main([str(tmp_path / "src"), str(tmp_path / "dst"), "--vignette"]) == 0
+    assert not (tmp_path / "dst" / "vignette.png").exists()          # not picked up beside calib.txt by itself
+    cal = load_photometric(tmp_path / "dst" / "true_vignette")
+    out = cv2.imread(str(tmp_path / "dst" / "rgb" / "000.png"), cv2.IMREAD_UNCHANGED)
+    grey = cv2.cvtColor(decoded[0], cv2.COLOR_BGR2GRAY).astype(np.float32)
+    corrected = cal.correct(out)
+    assert out[0, 0] < 0.6 * grey[0, 0] + 1                       # the corner was darkened to about half
+    inner = np.s_[5:-5, 5:-5]
+    assert np.max(np.abs(corrected - grey)[inner]) <= 1.01          # 0.5 grey level of rounding / 0.5 at the corners
+
+
 def test_augment_rejects_a_bad_gain_range(tmp_path):
     _colour_sequence(tmp_path / "src", 1)
     with pytest.raises(SystemExit, match="gain-range"):

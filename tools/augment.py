@@ -8,7 +8,9 @@ SRC: a folder with ``rgb.txt`` and the images it lists (TUM layout). Everything 
 depth, calib.txt, accelerometer, ...) is copied unchanged; the images are written grey (8 bit) in
 the order the camera would apply the effects:
 
-* ``--vignette``: radial fall-off ``1 - 0.5 (r / r_corner)^2`` (50 % at the corners);
+* ``--vignette``: radial fall-off ``1 - 0.5 (r / r_corner)^2`` (50 % at the corners); the true
+  vignette is written to ``DST/true_vignette/vignette.png`` (16 bit, DSO's format), so
+  ``lite-vo run DST --photometric DST/true_vignette`` corrects with it;
 * ``--blur``: horizontal motion blur, a box of 3..7 px (uniform per frame);
 * ``--exposure``: auto-exposure ``gain(t) * I + offset(t)`` with gain within 0.55..1.45 and offset
   within +-10 grey levels, each a sine of period 1.5..2 s (random phase);
@@ -153,6 +155,10 @@ def main(argv=None) -> int:
         out_lines.append(f"{ts_text} {rel.as_posix()}")
         params.append({"timestamp": float(ts_text), "gain": float(gain[k]), "offset": float(offset[k]),
                        "blur_px": int(blur[k])})
+    if vig is not None:
+        (dst / "true_vignette").mkdir()
+        if not cv2.imwrite(str(dst / "true_vignette" / "vignette.png"), np.rint(vig * 65535).astype(np.uint16)):
+            raise SystemExit(f"augment: {dst / 'true_vignette'}: cannot write vignette.png")
     (dst / "rgb.txt").write_text("\n".join(out_lines) + "\n")
     (dst / "augment.json").write_text(json.dumps({
         "source": str(src), "seed": args.seed, "exposure": args.exposure,
