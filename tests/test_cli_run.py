@@ -130,3 +130,25 @@ def test_run_calib_option_on_an_image_folder_without_calib_txt(synth_small, tmp_
     assert main(["run", str(folder), "--out", str(out), "--quiet", "--calib", str(yaml), "--init", "random"]) == 0
     assert "12 of 12 frames tracked" in capsys.readouterr().out
     assert len(read_trajectory(out / "trajectory.txt")) == 12
+
+
+def test_run_poses_the_blown_out_frames_its_start_skipped(tmp_path, capsys):
+    """A recording whose first frames are blown out (auto-exposure settling): the start-up skips them and
+    poses them afterwards; the summary says so, trajectory.txt has every frame, run.json counts them."""
+    import cv2
+    from lite_vo.synth import generate_sequence
+    seq = tmp_path / "fast"
+    generate_sequence(seq, scene="room", trajectory="fast", n_frames=45, seed=1, width=320, height=240)
+    names = [line.split()[1] for line in (seq / "rgb.txt").read_text().splitlines() if not line.startswith("#")]
+    for k, name in enumerate(names[:4]):
+        img = cv2.imread(str(seq / name), cv2.IMREAD_UNCHANGED).astype(np.float32)
+        assert cv2.imwrite(str(seq / name), np.clip(2.0 * img + 60 - 3 * k, 0, 255).astype(np.uint8))
+    out = tmp_path / "out"
+    assert main(["run", str(seq), "--out", str(out), "--init", "random", "--quiet"]) == 0
+    said = capsys.readouterr().out
+    assert "41 of 45 frames tracked" in said and "4 blown out before the start (4 of them posed afterwards)" in said
+    assert len(read_trajectory(out / "trajectory.txt")) == 45
+    frames = json.loads((out / "run.json").read_text())["frames"]
+    assert frames["waited"] == 4 and frames["backfilled"] == 4 and frames["posed"] == 45
+    timing = json.loads((out / "timing.json").read_text())
+    assert timing["frames"]["waited"] == 4 and timing["frames"]["backfilled"] == 4
