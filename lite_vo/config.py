@@ -74,7 +74,10 @@ class SystemConfig:
                                      "clipped (auto-exposure still settling), at most start_max_wait_s; the frames "
                                      "before are tracked backwards once the start-up is resolved (1 = off: start on "
                                      "the first frame)", 0.0, 1.0)
-    start_max_wait_s: float = param(2.0, "longest wait of start_max_clipped (then the start-up begins anyway)", 0.0, 600.0)
+    start_min_textured: float = param(0.2, "... and for a frame with at least this share of its pixels textured enough for "
+                                      "a hypothesis (mapping.min_grad): not black or too dark (a camera still opening)", 0.0, 1.0)
+    start_max_wait_s: float = param(2.0, "longest wait of start_max_clipped / start_min_textured (then the start-up "
+                                    "begins anyway)", 0.0, 600.0)
     verify_init: bool = param(True, "check a random initialisation against two-view geometry; re-initialise from two views when they disagree")
     verify_features: int = param(300, "corners followed by Lucas-Kanade for the check", 20, 5000)
     verify_min_parallax_px: float = param(25.0, "median corner displacement (px at 320 width) before the check", 1.0, 500.0)

@@ -52,7 +52,7 @@ from .errors import InputError, LiteVOError
 from .geometry import inverse_se3, project_to_se3
 from .image import image_pyramid
 from .keyframes import Keyframe, KeyframeStore, PointCloud, scene_cloud
-from .mapping import MapFrame, Mapper, depth_accuracy
+from .mapping import MapFrame, Mapper, depth_accuracy, image_gradients
 from .records import RowRecord
 from .timing import Timers
 from .tracking import Tracker, TrackingReference, depth_image_idepth
@@ -149,6 +149,7 @@ class _Frame:
     mapper: Any = None                # the mapper whose map this frame was tracked against
     sharpness: float = 1.0            # relative to the recent frames (motion blur: < 1)
     clipped: float = 0.0              # share of the pixels at or above mapping.saturation
+    textured: float = float("nan")    # share of the pixels with a hypothesis' gradient (measured only before a start)
     affine: tuple = (1.0, 0.0)        # brightness (A, B): I = A * J + B, chained by tracking
     noise_sigma: float = float("nan")  # smoothed image noise estimate (grey levels)
     rectify_depth: Any = None          # native depth -> mapping resolution (the system's rectifier)
@@ -619,9 +620,17 @@ class VisualOdometry:
 
     def _waits_for_exposure(self, frame: _Frame) -> bool:
         """Whether a monocular start skips this frame: too much of it clipped (``system.start_max_clipped``)
-        while the wait (``system.start_max_wait_s`` from the first skipped frame) lasts."""
+        or too little of it textured (``system.start_min_textured``: black or very dark, a camera still
+        opening) while the wait (``system.start_max_wait_s`` from the first skipped frame) lasts."""
         sc = self.config.system
-        if self._depth_start(frame) or not (sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped):
+        if self._depth_start(frame):
+            return False
+        unusable = sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped
+        if not unusable and sc.start_min_textured > 0.0:
+            frame.textured = float(np.count_nonzero(image_gradients(frame.image)[2] >= self.config.mapping.min_grad)
+                                   ) / frame.image.size
+            unusable = frame.textured < sc.start_min_textured
+        if not unusable:
             return False
         if self._wait_t0 is None:
             self._wait_t0 = frame.timestamp
@@ -635,7 +644,10 @@ class VisualOdometry:
                                  frame.sharpness))
             self._t0 = None          # the run's start-up phase (map_every_startup) begins with the first used frame
             self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
-            return FrameResult(frame.index, frame.timestamp, None, True, {"clipped": frame.clipped}, event="waiting")
+            quality = {"clipped": frame.clipped}
+            if math.isfinite(frame.textured):
+                quality["textured"] = frame.textured
+            return FrameResult(frame.index, frame.timestamp, None, True, quality, event="waiting")
         if not self._initialized:
             result = self._initialize(frame, np.eye(4), "init")
             self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
@@ -686,12 +698,13 @@ class VisualOdometry:
         T_world_new = None if lost else project_to_se3(ref.T_world_ref @ tr.T_ref_new)
         if self._verifier is not None:
             decision = self._verifier.add(frame.index, frame.timestamp, frame.image, T_world_new, frame.corner_image)
-            frame.corner_image = None       # followed: not kept with the frame
+            # the corner image stays until the frame is handed on: a lost frame may still start a new map
             if decision is not None:
                 self._verifier = None
                 if isinstance(decision, str) and self._waited:     # the random map stays: its world and scale
                     self._late_corrections.update(self._backfill_waited())
                 if not isinstance(decision, str):
+                    frame.corner_image = None
                     result = self._apply_bootstrap(decision, frame, quality)
                     self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
                     return result
@@ -882,7 +895,8 @@ class VisualOdometry:
             step = inverse_se3(pose_ref) @ T
             pose_ref, affine = T, compose_affine(ref_affine, tr.affine)
             out[index] = project_to_se3(T_world_ref @ T)
-        log.info("the start-up skipped %d blown-out frames; %d of them got a pose, tracked backwards against the map",
+        log.info("the start-up skipped %d frames (blown out or too dark); %d of them got a pose, tracked backwards "
+                 "against the map",
                  len(waited), len(out))
         self.counts["backfilled"] += len(out)
         return out
@@ -969,6 +983,7 @@ class VisualOdometry:
         return frame.index % every == 0
 
     def _hand_to_mapping(self, frame: _Frame) -> bool:
+        frame.corner_image = None           # followed by the start-up check (if any): not kept with the frame
         frame.mapper = self._mapper
         if frame.sharpness < self.config.system.blur_min_sharpness:
             return False  # motion blur: tracked only (no stereo reference, no map in it, no new hypotheses)

@@ -402,3 +402,23 @@ def test_frames_skipped_while_the_exposure_settles_get_their_poses_back(tmp_path
     near = [int(np.argmin(np.abs(gt.timestamps - ts[k]))) for k in keys]
     err = [np.linalg.norm((T_gt_est @ np.r_[poses[k][:3, 3], 1.0])[:3] - gt.poses[i][:3, 3]) for k, i in zip(keys, near)]
     assert max(err[:4]) < 2.0 * np.median(err[4:]), err[:8]          # 4-5 mm against a median of 4 mm here
+
+
+def test_a_start_lost_from_its_first_frame_re_initialises_with_the_fine_start_up_corners(tmp_path):
+    """A random start on a black frame (no wait) is lost until max_lost_frames re-initialises the map;
+    the new start-up follows its corners at twice the mapping resolution like the first one (the frame
+    that re-initialises keeps its fine corner image; it was dropped once and the next frame failed with
+    a size mismatch)."""
+    from lite_vo.synth import generate_sequence
+    generate_sequence(tmp_path / "s", scene="room", trajectory="fast", n_frames=12, seed=1)      # 640x480
+    seq = lite_vo.open_sequence(tmp_path / "s")
+    cfg = lite_vo.load_profile("phone", ['system.init="random"', "system.start_max_clipped=1",
+                                         "system.start_min_textured=0", "system.max_lost_frames=3"])
+    events = []
+    with lite_vo.VisualOdometry(seq.camera, cfg) as vo:
+        for k, fr in enumerate(seq.frames()):
+            img = np.zeros_like(fr.image) if k == 0 else fr.image
+            events.append(vo.process(img, fr.timestamp).event)
+        assert vo._verifier is not None and vo._verifier.scale_px == 2.0       # the second start-up, fine corners
+    assert events[:5] == ["init", "lost", "lost", "reinit", ""], events
+    assert "lost" not in events[4:]

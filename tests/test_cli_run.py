@@ -146,7 +146,7 @@ def test_run_poses_the_blown_out_frames_its_start_skipped(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["run", str(seq), "--out", str(out), "--init", "random", "--quiet"]) == 0
     said = capsys.readouterr().out
-    assert "41 of 45 frames tracked" in said and "4 blown out before the start (4 of them posed afterwards)" in said
+    assert "41 of 45 frames tracked" in said and "4 blown out or too dark to start on (4 of them posed afterwards)" in said
     assert len(read_trajectory(out / "trajectory.txt")) == 45
     frames = json.loads((out / "run.json").read_text())["frames"]
     assert frames["waited"] == 4 and frames["backfilled"] == 4 and frames["posed"] == 45

@@ -172,8 +172,15 @@ def test_a_monocular_start_can_wait_for_the_exposure_to_settle():
     # the wait is bounded: with 50 ms the third blown-out frame (t = 67 ms) starts the map anyway
     res, counts = run("system.init=random", "system.start_max_wait_s=0.05")
     assert [r.event for r in res[:3]] == ["waiting", "waiting", "init"] and counts["waited"] == 2
-    # 1 turns it off; a depth start does not wait
-    for overrides in (("system.init=random", "system.start_max_clipped=1"), ("system.init=depth",)):
+    # black or very dark frames (a camera still opening) wait too: too few pixels with gradient
+    dark = [(np.rint(0.03 * img).astype(np.uint8), z) for img, z in frames[:3]]
+    with VisualOdometry(INTR, load_profile("phone", ["system.init=random"])) as vo:
+        res = [vo.process(img, k / 30.0) for k, (img, _) in enumerate(dark + frames[3:])]
+    assert [r.event for r in res[:4]] == ["waiting", "waiting", "waiting", "init"]
+    assert res[0].quality["textured"] < load_profile("phone").system.start_min_textured and res[0].quality["clipped"] == 0
+    # 1 (and 0 for the texture) turns it off; a depth start does not wait
+    for overrides in (("system.init=random", "system.start_max_clipped=1", "system.start_min_textured=0"),
+                      ("system.init=depth",)):
         res, counts = run(*overrides)
         assert res[0].event == "init" and "waited" not in counts      # timing.json's frames as before
 

@@ -84,7 +84,7 @@ def run(args) -> int:
     skipped = f", {c['skipped']} unreadable skipped" if c.get("skipped") else ""
     back = c.get("backfilled", 0)
     if c.get("waited"):
-        skipped += f", {c['waited']} blown out before the start ({back} of them posed afterwards)"
+        skipped += f", {c['waited']} blown out or too dark to start on ({back} of them posed afterwards)"
     later = c.get("posed", c["tracked"]) - c["tracked"] - back
     later = f" ({later} of them posed later by the two-view start-up)" if later > 0 else ""
     msg = (f"{seq.name}: {res.status}; {c['tracked']} of {c['in']} frames tracked, {c['lost']} lost{later}, "
