@@ -91,6 +91,19 @@ def test_augment_writes_the_true_vignette_for_photometric_correction(tmp_path):
     assert np.max(np.abs(corrected - grey)[inner]) <= 1.01          # 0.5 grey level of rounding / 0.5 at the corners
 
 
+def test_augment_dark_start_ramps_up_from_black(tmp_path):
+    decoded = _colour_sequence(tmp_path / "src", 4)
+    aug = _augment_module()
+    assert aug.main([str(tmp_path / "src"), str(tmp_path / "dst"), "--dark-start", "3"]) == 0
+    meta = json.loads((tmp_path / "dst" / "augment.json").read_text())
+    assert meta["dark_start"] == 3 and [f["gain"] for f in meta["frames"]] == pytest.approx([0, 1 / 9, 4 / 9, 1])
+    for k in (0, 2, 3):
+        out = cv2.imread(str(tmp_path / "dst" / "rgb" / f"{k:03d}.png"), cv2.IMREAD_UNCHANGED)
+        grey = cv2.cvtColor(decoded[k], cv2.COLOR_BGR2GRAY).astype(np.float64)
+        assert np.array_equal(out, np.clip(np.rint(meta["frames"][k]["gain"] * grey), 0, 255).astype(np.uint8))
+    assert not np.any(cv2.imread(str(tmp_path / "dst" / "rgb" / "000.png"), cv2.IMREAD_UNCHANGED))      # black
+
+
 def test_augment_rejects_a_bad_gain_range(tmp_path):
     _colour_sequence(tmp_path / "src", 1)
     with pytest.raises(SystemExit, match="gain-range"):

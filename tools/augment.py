@@ -15,6 +15,8 @@ the order the camera would apply the effects:
 * ``--exposure``: auto-exposure ``gain(t) * I + offset(t)`` with gain within 0.55..1.45 and offset
   within +-10 grey levels, each a sine of period 1.5..2 s (random phase);
 * ``--noise [SIGMA]``: Gaussian noise of std SIGMA grey levels (default 3);
+* ``--dark-start N``: a camera still opening: the first N frames' gain ramps up as ``(k / N)^2`` (frame 0
+  black), on top of ``--exposure``;
 * ``--jpeg [Q]``: JPEG at quality Q (default 85; the images become .jpg, rgb.txt follows).
 
 The parameters of every frame are written to ``DST/augment.json``. Errors are one line.
@@ -113,6 +115,8 @@ def main(argv=None) -> int:
     ap.add_argument("--noise", nargs="?", type=float, const=3.0, default=0.0, metavar="SIGMA",
                     help="Gaussian noise std in grey levels (default 3)")
     ap.add_argument("--jpeg", nargs="?", type=int, const=85, default=0, metavar="Q", help="JPEG quality (default 85)")
+    ap.add_argument("--dark-start", type=int, default=0, metavar="N",
+                    help="the first N frames ramp up from black (gain (k/N)^2)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--force", action="store_true", help="replace DST")
     args = ap.parse_args(argv)
@@ -127,6 +131,8 @@ def main(argv=None) -> int:
         shutil.rmtree(dst)
     if not 0 < args.gain_range[0] <= args.gain_range[1]:
         raise SystemExit(f"augment: --gain-range {args.gain_range[0]:g} {args.gain_range[1]:g}: need 0 < LO <= HI")
+    if args.dark_start < 0:
+        raise SystemExit(f"augment: --dark-start {args.dark_start}: need N >= 0")
     if args.jpeg and not 1 <= args.jpeg <= 100:
         raise SystemExit(f"augment: --jpeg {args.jpeg}: quality must be in 1..100")
     shutil.copytree(src, dst, ignore=shutil.ignore_patterns("rgb", "rgb.txt"))
@@ -134,6 +140,8 @@ def main(argv=None) -> int:
     times = np.array([t for _, t, _ in rows]) - rows[0][1]
     gain, offset = exposure_curve(times, rng, tuple(args.gain_range), args.offset) if args.exposure else (np.ones(len(rows)), np.zeros(len(rows)))
     blur = rng.integers(3, 8, len(rows)) if args.blur else np.ones(len(rows), np.int64)
+    n_dark = min(args.dark_start, len(rows))
+    gain[:n_dark] = gain[:n_dark] * (np.arange(n_dark) / max(args.dark_start, 1)) ** 2
     vig = None
     params = []
     out_lines = ["# timestamp filename (augmented: " + " ".join(a for a in sys.argv[1:] if a.startswith("--")) + ")"]
@@ -163,7 +171,7 @@ def main(argv=None) -> int:
     (dst / "augment.json").write_text(json.dumps({
         "source": str(src), "seed": args.seed, "exposure": args.exposure,
         "gain_range": list(args.gain_range), "offset_amplitude": args.offset, "vignette": args.vignette,
-        "blur": args.blur, "noise_sigma": args.noise, "jpeg_quality": args.jpeg, "frames": params}, indent=1))
+        "blur": args.blur, "dark_start": args.dark_start, "noise_sigma": args.noise, "jpeg_quality": args.jpeg, "frames": params}, indent=1))
     print(f"augment: {len(rows)} frames -> {dst}")
     return 0
 
