@@ -675,11 +675,14 @@ class VisualOdometry:
                                        fix_affine=True)
             held.level_ms = {k: v + tr.level_ms.get(k, 0.0) for k, v in held.level_ms.items()}
             tr = held
-        if self._verifier is not None and tr.lost_reason == "residual too large":
+        if self._verifier is not None and tr.lost_reason in ("residual too large", "implausible brightness change"):
             # an unverified random map: its residuals are large by nature (worse the brighter the
             # frame); a frame lost now is never mapped, so the map never converges, and the two-view
-            # check replaces the map and these poses if the tracked motion is wrong
-            tr.lost_reason = self._tracker.lost_reason(tr, check_residual=False)
+            # check replaces the map and these poses if the tracked motion is wrong. A gain beyond the
+            # bound that the corners measured too is real (an exposure ramping up while the camera
+            # opens: 2.3x against a reference that lost frames never replace)
+            measured_gain = measured is not None and not _brightness_disagrees(tr.affine, measured)
+            tr.lost_reason = self._tracker.lost_reason(tr, check_residual=False, check_gain=not measured_gain)
             tr.lost = bool(tr.lost_reason)
         for lvl, ms in tr.level_ms.items():
             self.timers.add(f"track_lvl{lvl}", ms)
