@@ -884,8 +884,14 @@ class VisualOdometry:
             guess = pose_ref @ step
             first = affine_transfer(ref_affine, affine if measured is None else measured)
             tr = self._tracker.track(tref, pyramid, guess, first, sigma)
-            if measured is not None and _brightness_disagrees(tr.affine, first, BACKFILL_GAIN_TOL, BACKFILL_GREY_TOL):
-                tr = self._tracker.track(tref, pyramid, guess, first, sigma, fix_affine=True)
+            if measured is not None:
+                if _brightness_disagrees(tr.affine, first, BACKFILL_GAIN_TOL, BACKFILL_GREY_TOL):
+                    tr = self._tracker.track(tref, pyramid, guess, first, sigma, fix_affine=True)
+                # the gain agrees with (or is held at) the measured one: beyond the lost test's bound it is
+                # real (a camera opening: a dark frame at a third of the start frame's brightness)
+                tr.lost_reason = self._tracker.lost_reason(tr, bool(np.all(np.isfinite(tr.T_ref_new))),
+                                                           check_gain=False)
+                tr.lost = bool(tr.lost_reason)
             if tr.lost or not np.all(np.isfinite(tr.T_ref_new)):
                 misses += 1
                 if misses == 2:
