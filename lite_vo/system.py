@@ -586,6 +586,11 @@ class VisualOdometry:
                             "accuracy; start the run where the image is no longer blown out (--start-frame), or let the "
                             "start-up wait for it (system.start_max_clipped, system.start_max_wait_s)",
                             frame.index, 100 * frame.clipped)
+            elif frame.textured < self.config.system.start_min_textured and self.pose_source == "estimate":
+                log.warning("the monocular start-up begins on frame %d with only %.0f %% of its pixels textured enough "
+                            "for a map (black or very dark: the camera still opening?) after waiting %.1f s "
+                            "(system.start_max_wait_s): it may be lost until the map is re-initialised",
+                            frame.index, 100 * frame.textured, self.config.system.start_max_wait_s)
         self._install_mapper(mapper, frame)
         self._verifier = None
         if not use_depth and self.config.system.verify_init and self.pose_source == "estimate":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import logging
 from pathlib import Path
 
 import cv2
@@ -139,7 +140,6 @@ def test_a_monocular_start_on_a_blown_out_frame_is_warned_about(caplog):
     cameras": the exposure seeds that start 58-79 % clipped): when the start-up does not wait for a better
     frame (system.start_max_clipped=1, or its wait ran out) the run says so, with the share; a normal start
     and a depth start do not warn. The init frame's quality carries the share either way."""
-    import logging
     from lite_vo.system import BLOWN_OUT_START
     room = naive_tracking.Room(seed=1, cell=0.05, depth=1.3, half_width=0.9, floor=0.5, ceiling=-0.6)
     img, z = room.render(np.eye(4), INTR, supersample=2)
@@ -159,7 +159,7 @@ def test_a_monocular_start_on_a_blown_out_frame_is_warned_about(caplog):
             assert f"{100 * share:.0f} %" in said[0] and "--start-frame" in said[0] and "start_max_wait_s" in said[0]
 
 
-def test_a_monocular_start_can_wait_for_the_exposure_to_settle():
+def test_a_monocular_start_can_wait_for_the_exposure_to_settle(caplog):
     """system.start_max_clipped: frames more clipped than that are skipped (no pose yet, event "waiting",
     counted as waited, not lost) until one is usable or start_max_wait_s has passed; on by default (0.4),
     1 turns it off, and a depth start never waits."""
@@ -191,6 +191,12 @@ def test_a_monocular_start_can_wait_for_the_exposure_to_settle():
         res = [vo.process(img, k / 30.0) for k, (img, _) in enumerate(dark + frames[3:])]
     assert [r.event for r in res[:4]] == ["waiting", "waiting", "waiting", "init"]
     assert res[0].quality["textured"] < load_profile("phone").system.start_min_textured and res[0].quality["clipped"] == 0
+    # when the wait runs out on such frames the start-up says so
+    with caplog.at_level(logging.WARNING, logger="lite_vo.system"):
+        with VisualOdometry(INTR, load_profile("phone", ["system.init=random", "system.start_max_wait_s=0.05"])) as vo:
+            res = [vo.process(img, k / 30.0) for k, (img, _) in enumerate(dark)]
+    assert [r.event for r in res] == ["waiting", "waiting", "init"]
+    assert any("textured" in m and "start_max_wait_s" in m for m in caplog.messages), caplog.messages
     # 1 (and 0 for the texture) turns it off; a depth start does not wait
     for overrides in (("system.init=random", "system.start_max_clipped=1", "system.start_min_textured=0"),
                       ("system.init=depth",)):
