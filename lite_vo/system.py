@@ -303,6 +303,7 @@ class VisualOdometry:
         self._start_affine: tuple = (1.0, 0.0)
         self._start_pyramid: list | None = None  # its image pyramid (only while skipped frames wait for a pose)
         self._late_corrections: dict = {}    # poses of earlier frames found while processing this one
+        self._reinit_wait_t0: float | None = None   # a due re-initialisation waits for a usable frame since then
         self._last_ts: float | None = None
         self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "waited": 0, "backfilled": 0, "reinit": 0,
                        "bootstrap": 0,
@@ -623,23 +624,28 @@ class VisualOdometry:
         init = self.config.system.init
         return init == "depth" or (init == "auto" and frame.depth_native is not None)
 
-    def _waits_for_exposure(self, frame: _Frame) -> bool:
-        """Whether a monocular start skips this frame: too much of it clipped (``system.start_max_clipped``)
+    def _unusable_for_a_map(self, frame: _Frame) -> bool:
+        """Whether a map should not start in this frame: too much of it clipped (``system.start_max_clipped``)
         or too little of it textured (``system.start_min_textured``: black or very dark, a camera still
-        opening) while the wait (``system.start_max_wait_s`` from the first skipped frame) lasts."""
+        opening or covered)."""
         sc = self.config.system
-        if self._depth_start(frame):
+        if sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped:
+            return True
+        if sc.start_min_textured <= 0.0:
             return False
-        unusable = sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped
-        if not unusable and sc.start_min_textured > 0.0:
+        if not math.isfinite(frame.textured):
             frame.textured = float(np.count_nonzero(image_gradients(frame.image)[2] >= self.config.mapping.min_grad)
                                    ) / frame.image.size
-            unusable = frame.textured < sc.start_min_textured
-        if not unusable:
+        return frame.textured < sc.start_min_textured
+
+    def _waits_for_exposure(self, frame: _Frame) -> bool:
+        """Whether a monocular start skips this frame (:meth:`_unusable_for_a_map`) while the wait
+        (``system.start_max_wait_s`` from the first skipped frame) lasts."""
+        if self._depth_start(frame) or not self._unusable_for_a_map(frame):
             return False
         if self._wait_t0 is None:
             self._wait_t0 = frame.timestamp
-        return frame.timestamp - self._wait_t0 < sc.start_max_wait_s
+        return frame.timestamp - self._wait_t0 < self.config.system.start_max_wait_s
 
     def _process_tracking(self, frame: _Frame, t_start: float) -> FrameResult:
         if not self._initialized and self._waits_for_exposure(frame):
@@ -725,7 +731,9 @@ class VisualOdometry:
             self._lost_count += 1
             self.counts["lost"] += 1
             self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
-            if self._lost_count >= self.config.system.max_lost_frames and self._last_good_pose is not None:
+            if self._lost_count >= self.config.system.max_lost_frames and self._last_good_pose is not None \
+                    and not self._defers_reinit(frame):
+                self._reinit_wait_t0 = None
                 log.warning("tracking lost for %d frames: re-initialising the map at frame %d (a new map%s)",
                             self._lost_count - 1, frame.index, "" if self.metric else " with a new scale")
                 self.counts["tracked"] -= 1  # _initialize counts it; this frame is the new start
@@ -789,6 +797,18 @@ class VisualOdometry:
         return FrameResult(frame.index, frame.timestamp, T_world_new.copy(), False, quality, mapped=mapped,
                            event="relocalised")
 
+    def _defers_reinit(self, frame: _Frame) -> bool:
+        """Whether a re-initialisation that is due waits for a better frame: this one is blown out or black
+        (:meth:`_unusable_for_a_map`: a covered lens, a lamp filling the view) and the wait has lasted less
+        than ``system.start_max_wait_s``. A map started in it would be lost again, and a monocular one would
+        take a new scale, which the relocalisation against the earlier keyframes cannot cross."""
+        if not self._unusable_for_a_map(frame):
+            return False
+        if self._reinit_wait_t0 is None:
+            self._reinit_wait_t0 = frame.timestamp
+            log.info("re-initialisation due at frame %d waits for a frame that is not blown out or black", frame.index)
+        return frame.timestamp - self._reinit_wait_t0 < self.config.system.start_max_wait_s
+
     def _accept_pose(self, T_world_new: np.ndarray, smooth: bool) -> None:
         """Book-keeping of a tracked pose: velocity (constant-velocity guess) and last poses."""
         if smooth and self._last_pose is not None:
@@ -796,6 +816,7 @@ class VisualOdometry:
         else:
             self._velocity = np.eye(4)
         self._lost_count = 0
+        self._reinit_wait_t0 = None
         self._last_pose = T_world_new
         self._last_good_pose = T_world_new
 

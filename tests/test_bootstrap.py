@@ -443,3 +443,29 @@ def test_an_exposure_ramping_up_during_the_start_up_is_not_lost_to_the_gain_boun
     ratios = [results[k].quality["affine_a"] for k in range(start + 1, 13) if "affine_a" in results[k].quality]
     assert 3 <= start <= 8 and max(ratios) > cfg.tracking.max_gain_change, (start, ratios)
     assert lost == 0 and all(r.T_world_cam is not None for r in results[start:]), [r.event for r in results]
+
+
+def test_a_covered_camera_relocalises_instead_of_restarting_on_a_black_frame(tmp_path):
+    """A camera covered for longer than system.max_lost_frames: the re-initialisation that is due waits for
+    a frame that is not black (a map started in a black frame would be lost again and, monocular, take a new
+    scale the relocalisation cannot cross); once the view is back, the frame relocalises in the same map.
+    With the wait off (start_min_textured=0) the map restarts on a black frame, as before."""
+    from lite_vo.synth import generate_sequence
+    generate_sequence(tmp_path / "s", scene="room", trajectory="handheld", n_frames=44, seed=2, width=320, height=240)
+    seq = lite_vo.open_sequence(tmp_path / "s")
+
+    def run(*extra):
+        cfg = lite_vo.load_profile("phone", ['system.init="depth"', "system.max_lost_frames=3", *extra])
+        with lite_vo.VisualOdometry(seq.camera, cfg) as vo:
+            res = [vo.process(np.zeros_like(fr.image) if 30 <= k < 38 else fr.image, fr.timestamp, depth=fr.depth)
+                   for k, fr in enumerate(seq.frames())]
+            return [r.event for r in res], res
+
+    events, res = run()
+    assert "reinit" not in events and events[38] in ("recovered", "relocalised"), events[28:]
+    assert all(r.T_world_cam is not None for r in res[38:])
+    T_gt = seq.groundtruth.poses
+    err = np.linalg.norm(res[-1].T_world_cam[:3, 3] - (inverse_se3(T_gt[0]) @ T_gt[-1])[:3, 3])
+    assert err < 0.02, err                                                       # metres: the same map, metric
+    events, _ = run("system.start_min_textured=0")
+    assert "reinit" in events[30:38]
