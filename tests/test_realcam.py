@@ -92,7 +92,7 @@ def test_augment_writes_the_true_vignette_for_photometric_correction(tmp_path):
     assert np.max(np.abs(corrected - grey)[inner]) <= 1.01          # 0.5 grey level of rounding / 0.5 at the corners
 
 
-def test_augment_dark_start_ramps_up_from_black(tmp_path):
+def test_augment_dark_start_ramps_up_from_black_and_cover_blacks_frames_out(tmp_path):
     decoded = _colour_sequence(tmp_path / "src", 4)
     aug = _augment_module()
     assert aug.main([str(tmp_path / "src"), str(tmp_path / "dst"), "--dark-start", "3"]) == 0
@@ -103,6 +103,14 @@ def test_augment_dark_start_ramps_up_from_black(tmp_path):
         grey = cv2.cvtColor(decoded[k], cv2.COLOR_BGR2GRAY).astype(np.float64)
         assert np.array_equal(out, np.clip(np.rint(meta["frames"][k]["gain"] * grey), 0, 255).astype(np.uint8))
     assert not np.any(cv2.imread(str(tmp_path / "dst" / "rgb" / "000.png"), cv2.IMREAD_UNCHANGED))      # black
+    # --cover A B: frames A .. B-1 black, the others untouched
+    assert aug.main([str(tmp_path / "src"), str(tmp_path / "cov"), "--cover", "1", "3"]) == 0
+    for k in range(4):
+        out = cv2.imread(str(tmp_path / "cov" / "rgb" / f"{k:03d}.png"), cv2.IMREAD_UNCHANGED)
+        grey = cv2.cvtColor(decoded[k], cv2.COLOR_BGR2GRAY)
+        assert np.array_equal(out, np.zeros_like(grey) if k in (1, 2) else grey), k
+    with pytest.raises(SystemExit, match="--cover"):
+        aug.main([str(tmp_path / "src"), str(tmp_path / "bad"), "--cover", "3", "1"])
 
 
 def test_augment_rejects_a_bad_gain_range(tmp_path):

@@ -17,6 +17,7 @@ the order the camera would apply the effects:
 * ``--noise [SIGMA]``: Gaussian noise of std SIGMA grey levels (default 3);
 * ``--dark-start N``: a camera still opening: the first N frames' gain ramps up as ``(k / N)^2`` (frame 0
   black), on top of ``--exposure``;
+* ``--cover A B``: frames A .. B-1 black (a hand over the lens);
 * ``--jpeg [Q]``: JPEG at quality Q (default 85; the images become .jpg, rgb.txt follows).
 
 The parameters of every frame are written to ``DST/augment.json``. Errors are one line.
@@ -117,6 +118,8 @@ def main(argv=None) -> int:
     ap.add_argument("--jpeg", nargs="?", type=int, const=85, default=0, metavar="Q", help="JPEG quality (default 85)")
     ap.add_argument("--dark-start", type=int, default=0, metavar="N",
                     help="the first N frames ramp up from black (gain (k/N)^2)")
+    ap.add_argument("--cover", nargs=2, type=int, default=None, metavar=("A", "B"),
+                    help="frames A .. B-1 black (a covered lens)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--force", action="store_true", help="replace DST")
     args = ap.parse_args(argv)
@@ -140,6 +143,11 @@ def main(argv=None) -> int:
     times = np.array([t for _, t, _ in rows]) - rows[0][1]
     gain, offset = exposure_curve(times, rng, tuple(args.gain_range), args.offset) if args.exposure else (np.ones(len(rows)), np.zeros(len(rows)))
     blur = rng.integers(3, 8, len(rows)) if args.blur else np.ones(len(rows), np.int64)
+    if args.cover is not None:
+        if not 0 <= args.cover[0] < args.cover[1]:
+            raise SystemExit(f"augment: --cover {args.cover[0]} {args.cover[1]}: need 0 <= A < B")
+        gain[args.cover[0]:args.cover[1]] = 0.0
+        offset[args.cover[0]:args.cover[1]] = 0.0
     n_dark = min(args.dark_start, len(rows))
     gain[:n_dark] = gain[:n_dark] * (np.arange(n_dark) / max(args.dark_start, 1)) ** 2
     vig = None
@@ -171,7 +179,7 @@ def main(argv=None) -> int:
     (dst / "augment.json").write_text(json.dumps({
         "source": str(src), "seed": args.seed, "exposure": args.exposure,
         "gain_range": list(args.gain_range), "offset_amplitude": args.offset, "vignette": args.vignette,
-        "blur": args.blur, "dark_start": args.dark_start, "noise_sigma": args.noise, "jpeg_quality": args.jpeg, "frames": params}, indent=1))
+        "blur": args.blur, "dark_start": args.dark_start, "cover": args.cover, "noise_sigma": args.noise, "jpeg_quality": args.jpeg, "frames": params}, indent=1))
     print(f"augment: {len(rows)} frames -> {dst}")
     return 0
 
