@@ -626,11 +626,17 @@ class VisualOdometry:
 
     def _unusable_for_a_map(self, frame: _Frame) -> bool:
         """Whether a map should not start in this frame: too much of it clipped (``system.start_max_clipped``)
-        or too little of it textured (``system.start_min_textured``: black or very dark, a camera still
-        opening or covered)."""
+        or too little of it textured (:meth:`_too_dark`)."""
         sc = self.config.system
         if sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped:
             return True
+        return self._too_dark(frame)
+
+    def _too_dark(self, frame: _Frame) -> bool:
+        """Whether too little of the frame has the gradient a hypothesis needs (``system.start_min_textured``:
+        black or very dark, a camera still opening or covered): no map starts there, and a lost frame like
+        this is not relocalised (nothing to align; a relocalisation costs tens of ms)."""
+        sc = self.config.system
         if sc.start_min_textured <= 0.0:
             return False
         if not math.isfinite(frame.textured):
@@ -722,7 +728,7 @@ class VisualOdometry:
                     result = self._apply_bootstrap(decision, frame, quality)
                     self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
                     return result
-        if lost and self._relocalizer is not None and self._verifier is None:
+        if lost and self._relocalizer is not None and self._verifier is None and not self._too_dark(frame):
             result = self._relocalise(frame, quality, sigma)
             if result is not None:
                 self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
