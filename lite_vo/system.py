@@ -32,6 +32,7 @@ This module never imports ``ar_demo`` or any GL/physics package.
 from __future__ import annotations
 
 import collections
+import functools
 import logging
 import math
 import threading
@@ -217,6 +218,16 @@ def warp_idepth(idepth: np.ndarray, idepth_var: np.ndarray, valid: np.ndarray, T
     return out_rho.reshape(h, w), out_var.reshape(h, w), out_valid.reshape(h, w)
 
 
+@functools.lru_cache(maxsize=4)
+def _patch_grid(h: int, w: int) -> np.ndarray:
+    """Points every 4 px (4 px from the border) of an h x w image, float32 (N, 2): where :func:`patch_affine`
+    compares two nearly aligned frames (read-only, shared)."""
+    gy, gx = np.mgrid[4:h - 4:4, 4:w - 4:4]
+    grid = np.column_stack([gx.ravel(), gy.ravel()]).astype(np.float32)
+    grid.setflags(write=False)
+    return grid
+
+
 # the back-fill's brightness, measured from frame to frame on a mostly clipped image, drifts by a few
 # per cent a frame: a tracked estimate this close to it is kept, a collapsed one (gain 0.1-0.8) is not
 BACKFILL_GAIN_TOL = 0.3
@@ -304,6 +315,7 @@ class VisualOdometry:
         self._start_pyramid: list | None = None  # its image pyramid (only while skipped frames wait for a pose)
         self._late_corrections: dict = {}    # poses of earlier frames found while processing this one
         self._reinit_wait_t0: float | None = None   # a due re-initialisation waits for a usable frame since then
+        self._prev_tracked: tuple | None = None      # (image at the tracking level, brightness) of the last tracked frame
         self._last_ts: float | None = None
         self.counts = {"in": 0, "tracked": 0, "lost": 0, "dropped": 0, "waited": 0, "backfilled": 0, "reinit": 0,
                        "bootstrap": 0,
@@ -372,6 +384,8 @@ class VisualOdometry:
         if self._late_corrections:
             result.corrections = {**self._late_corrections, **result.corrections}
             self._late_corrections = {}
+        if not result.lost and result.T_world_cam is not None:      # the image and brightness exposure steps compare with
+            self._prev_tracked = (frame.pyramid[self.track_level], frame.affine)
         result.image = frame.image
         return result
 
@@ -701,6 +715,17 @@ class VisualOdometry:
             measured_gain = measured is not None and not _brightness_disagrees(tr.affine, measured)
             tr.lost_reason = self._tracker.lost_reason(tr, check_residual=False, check_gain=not measured_gain)
             tr.lost = bool(tr.lost_reason)
+        if tr.lost_reason == "implausible brightness change" and self._prev_tracked is not None:
+            # an exposure step (auto-exposure jumping by more than the bound in one frame) is real when the
+            # last tracked frame and this one, nearly the same view, show the same change on patch means
+            prev_image, prev_affine = self._prev_tracked
+            image = frame.pyramid[self.track_level]
+            rel = patch_affine(prev_image, image, _patch_grid(*image.shape), _patch_grid(*image.shape),
+                               self.config.tracking.saturation)
+            if rel is not None and not _brightness_disagrees(
+                    tr.affine, affine_transfer(ref.affine, compose_affine(prev_affine, rel))):
+                tr.lost_reason = self._tracker.lost_reason(tr, check_residual=self._verifier is None, check_gain=False)
+                tr.lost = bool(tr.lost_reason)
         for lvl, ms in tr.level_ms.items():
             self.timers.add(f"track_lvl{lvl}", ms)
         quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio), "hypothesis": tr.hypothesis,
@@ -901,9 +926,7 @@ class VisualOdometry:
         ref_affine = self._start_affine
         T_world_ref = self._start_pose
         pose_ref, affine, step = np.eye(4), ref_affine, np.eye(4)       # pose in the start frame
-        h, w = start[self.track_level].shape
-        gy, gx = np.mgrid[4:h - 4:4, 4:w - 4:4]
-        grid = np.column_stack([gx.ravel(), gy.ravel()]).astype(np.float32)
+        grid = _patch_grid(*start[self.track_level].shape)
         later = start[self.track_level]
         out: dict = {}
         misses = 0

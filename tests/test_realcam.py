@@ -111,6 +111,11 @@ def test_augment_dark_start_ramps_up_from_black_and_cover_blacks_frames_out(tmp_
         assert np.array_equal(out, np.zeros_like(grey) if k in (1, 2) else grey), k
     with pytest.raises(SystemExit, match="--cover"):
         aug.main([str(tmp_path / "src"), str(tmp_path / "bad"), "--cover", "3", "1"])
+    # --step K G: the gain times G from frame K on
+    assert aug.main([str(tmp_path / "src"), str(tmp_path / "step"), "--step", "2", "0.5"]) == 0
+    assert [f["gain"] for f in json.loads((tmp_path / "step" / "augment.json").read_text())["frames"]] == [1, 1, 0.5, 0.5]
+    with pytest.raises(SystemExit, match="--step"):
+        aug.main([str(tmp_path / "src"), str(tmp_path / "bad2"), "--step", "1.5", "0.5"])
 
 
 def test_augment_rejects_a_bad_gain_range(tmp_path):
@@ -317,3 +322,21 @@ def test_euroc_standing_still_stays_put_while_the_start_up_waits():
     assert res.info["frames"]["tracked"] == 95
     P = np.array([T[:3, 3] for T in res.poses])
     assert np.linalg.norm(P - P[0], axis=1).max() < 0.003
+
+
+def test_an_exposure_step_beyond_the_gain_bound_is_tracked_when_the_frames_show_it(tmp_path):
+    """Auto-exposure jumping by more than tracking.max_gain_change in one frame (0.45x here): the tracked
+    gain is right, and the last tracked frame and this one measure the same change on patch means, so the
+    frame is tracked, not lost (before: lost until the map was re-initialised)."""
+    from lite_vo.synth import generate_sequence
+    import lite_vo
+    generate_sequence(tmp_path / "s", scene="room", trajectory="handheld", n_frames=30, seed=2, width=320, height=240)
+    seq = lite_vo.open_sequence(tmp_path / "s")
+    cfg = load_profile("phone", ["system.init=depth"])
+    assert 0.45 < 1 / cfg.tracking.max_gain_change
+    with VisualOdometry(seq.camera, cfg) as vo:
+        res = [vo.process(np.rint(np.asarray(fr.image, np.float32) * (0.45 if k >= 15 else 1.0)).astype(np.uint8),
+                          fr.timestamp, depth=fr.depth) for k, fr in enumerate(seq.frames())]
+    assert res[15].quality["affine_a"] == pytest.approx(0.45, rel=0.05), res[15].quality
+    assert [r.event for r in res if r.event] == ["init"] and not any(r.lost for r in res)
+    assert res[20].quality["brightness_a"] == pytest.approx(0.45, rel=0.05)

@@ -18,6 +18,7 @@ the order the camera would apply the effects:
 * ``--dark-start N``: a camera still opening: the first N frames' gain ramps up as ``(k / N)^2`` (frame 0
   black), on top of ``--exposure``;
 * ``--cover A B``: frames A .. B-1 black (a hand over the lens);
+* ``--step K G``: from frame K on, the gain is multiplied by G (auto-exposure jumping in one frame);
 * ``--jpeg [Q]``: JPEG at quality Q (default 85; the images become .jpg, rgb.txt follows).
 
 The parameters of every frame are written to ``DST/augment.json``. Errors are one line.
@@ -120,6 +121,8 @@ def main(argv=None) -> int:
                     help="the first N frames ramp up from black (gain (k/N)^2)")
     ap.add_argument("--cover", nargs=2, type=int, default=None, metavar=("A", "B"),
                     help="frames A .. B-1 black (a covered lens)")
+    ap.add_argument("--step", nargs=2, type=float, default=None, metavar=("K", "G"),
+                    help="from frame K on, multiply the gain by G (an exposure step)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--force", action="store_true", help="replace DST")
     args = ap.parse_args(argv)
@@ -148,6 +151,10 @@ def main(argv=None) -> int:
             raise SystemExit(f"augment: --cover {args.cover[0]} {args.cover[1]}: need 0 <= A < B")
         gain[args.cover[0]:args.cover[1]] = 0.0
         offset[args.cover[0]:args.cover[1]] = 0.0
+    if args.step is not None:
+        if not (args.step[0] >= 0 and args.step[0] == int(args.step[0]) and args.step[1] > 0):
+            raise SystemExit(f"augment: --step {args.step[0]:g} {args.step[1]:g}: need a frame K >= 0 and a gain G > 0")
+        gain[int(args.step[0]):] = gain[int(args.step[0]):] * args.step[1]
     n_dark = min(args.dark_start, len(rows))
     gain[:n_dark] = gain[:n_dark] * (np.arange(n_dark) / max(args.dark_start, 1)) ** 2
     vig = None
@@ -179,7 +186,7 @@ def main(argv=None) -> int:
     (dst / "augment.json").write_text(json.dumps({
         "source": str(src), "seed": args.seed, "exposure": args.exposure,
         "gain_range": list(args.gain_range), "offset_amplitude": args.offset, "vignette": args.vignette,
-        "blur": args.blur, "dark_start": args.dark_start, "cover": args.cover, "noise_sigma": args.noise, "jpeg_quality": args.jpeg, "frames": params}, indent=1))
+        "blur": args.blur, "dark_start": args.dark_start, "cover": args.cover, "step": args.step, "noise_sigma": args.noise, "jpeg_quality": args.jpeg, "frames": params}, indent=1))
     print(f"augment: {len(rows)} frames -> {dst}")
     return 0
 
