@@ -618,6 +618,8 @@ class VisualOdometry:
         if event == "init":
             self._start_pose, self._start_affine = T_world_cam.copy(), frame.affine
             self._start_pyramid = frame.pyramid if self._waited else None
+        if use_depth and self._waited:
+            self._late_corrections.update(self._backfill_waited())    # a metric map: nothing to resolve first
         if self._verifier is None:
             self._waited = []       # no start-up to resolve (verify_init off): the skipped frames keep no pose
         self._initialized = True
@@ -648,8 +650,8 @@ class VisualOdometry:
 
     def _too_dark(self, frame: _Frame) -> bool:
         """Whether too little of the frame has the gradient a hypothesis needs (``system.start_min_textured``:
-        black or very dark, a camera still opening or covered): no map starts there, and a lost frame like
-        this is not relocalised (nothing to align; a relocalisation costs tens of ms)."""
+        black, very dark or nearly all white; a camera still opening or covered): no map starts there, and a
+        lost frame like this is not relocalised (nothing to align; a relocalisation costs tens of ms)."""
         sc = self.config.system
         if sc.start_min_textured <= 0.0:
             return False
@@ -659,9 +661,11 @@ class VisualOdometry:
         return frame.textured < sc.start_min_textured
 
     def _waits_for_exposure(self, frame: _Frame) -> bool:
-        """Whether a monocular start skips this frame (:meth:`_unusable_for_a_map`) while the wait
-        (``system.start_max_wait_s`` from the first skipped frame) lasts."""
-        if self._depth_start(frame) or not self._unusable_for_a_map(frame):
+        """Whether a start skips this frame while the wait (``system.start_max_wait_s`` from the first skipped
+        frame) lasts: a monocular start when it is blown out or black (:meth:`_unusable_for_a_map`), a start
+        from a depth image only when it is black or very dark (:meth:`_too_dark`: the depth is good, but
+        tracking needs the image's gradients; a clipped part leaves the rest to track)."""
+        if not (self._too_dark(frame) if self._depth_start(frame) else self._unusable_for_a_map(frame)):
             return False
         if self._wait_t0 is None:
             self._wait_t0 = frame.timestamp

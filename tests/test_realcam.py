@@ -175,7 +175,7 @@ def test_a_monocular_start_on_a_blown_out_frame_is_warned_about(caplog):
 def test_a_monocular_start_can_wait_for_the_exposure_to_settle(caplog):
     """system.start_max_clipped: frames more clipped than that are skipped (no pose yet, event "waiting",
     counted as waited, not lost) until one is usable or start_max_wait_s has passed; on by default (0.4),
-    1 turns it off, and a depth start never waits."""
+    1 turns it off. Black frames wait too (system.start_min_textured), also for a depth start."""
     room = naive_tracking.Room(seed=1, cell=0.05, depth=1.3, half_width=0.9, floor=0.5, ceiling=-0.6)
     frames = []
     for k in range(6):
@@ -210,11 +210,17 @@ def test_a_monocular_start_can_wait_for_the_exposure_to_settle(caplog):
             res = [vo.process(img, k / 30.0) for k, (img, _) in enumerate(dark)]
     assert [r.event for r in res] == ["waiting", "waiting", "init"]
     assert any("textured" in m and "start_max_wait_s" in m for m in caplog.messages), caplog.messages
-    # 1 (and 0 for the texture) turns it off; a depth start does not wait
+    # 1 (and 0 for the texture) turns it off; clipping alone never makes a depth start wait
     for overrides in (("system.init=random", "system.start_max_clipped=1", "system.start_min_textured=0"),
-                      ("system.init=depth",)):
+                      ("system.init=depth", "system.start_min_textured=0")):
         res, counts = run(*overrides)
         assert res[0].event == "init" and "waited" not in counts      # timing.json's frames as before
+    # a depth start waits for an image with gradients to track (its depth is good, its image black)
+    with VisualOdometry(INTR, load_profile("phone", ["system.init=depth"])) as vo:
+        res = [vo.process(img, k / 30.0, depth=z) for k, (img, z) in enumerate(dark + frames[3:])]
+        counts = vo.timing()["frames"]
+    assert [r.event for r in res[:4]] == ["waiting", "waiting", "waiting", "init"] and res[3].quality["init"] == "depth"
+    assert counts["waited"] == 3 and counts["lost"] == 0
 
 
 def _given_pose_run(affine: bool):
