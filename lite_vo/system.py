@@ -642,13 +642,13 @@ class VisualOdometry:
 
     def _unusable_for_a_map(self, frame: _Frame) -> bool:
         """Whether a map should not start in this frame: too much of it clipped (``system.start_max_clipped``)
-        or too little of it textured (:meth:`_too_dark`)."""
+        or too little of it textured (:meth:`_textureless`)."""
         sc = self.config.system
         if sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped:
             return True
-        return self._too_dark(frame)
+        return self._textureless(frame)
 
-    def _too_dark(self, frame: _Frame) -> bool:
+    def _textureless(self, frame: _Frame) -> bool:
         """Whether too little of the frame has the gradient a hypothesis needs (``system.start_min_textured``:
         black, very dark or nearly all white; a camera still opening or covered): no map starts there, and a
         lost frame like this is not relocalised (nothing to align; a relocalisation costs tens of ms)."""
@@ -663,9 +663,9 @@ class VisualOdometry:
     def _waits_for_exposure(self, frame: _Frame) -> bool:
         """Whether a start skips this frame while the wait (``system.start_max_wait_s`` from the first skipped
         frame) lasts: a monocular start when it is blown out or black (:meth:`_unusable_for_a_map`), a start
-        from a depth image only when it is black or very dark (:meth:`_too_dark`: the depth is good, but
+        from a depth image only when it is black or very dark (:meth:`_textureless`: the depth is good, but
         tracking needs the image's gradients; a clipped part leaves the rest to track)."""
-        if not (self._too_dark(frame) if self._depth_start(frame) else self._unusable_for_a_map(frame)):
+        if not (self._textureless(frame) if self._depth_start(frame) else self._unusable_for_a_map(frame)):
             return False
         if self._wait_t0 is None:
             self._wait_t0 = frame.timestamp
@@ -757,7 +757,7 @@ class VisualOdometry:
                     result = self._apply_bootstrap(decision, frame, quality)
                     self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
                     return result
-        if lost and self._relocalizer is not None and self._verifier is None and not self._too_dark(frame):
+        if lost and self._relocalizer is not None and self._verifier is None and not self._textureless(frame):
             result = self._relocalise(frame, quality, sigma)
             if result is not None:
                 self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
