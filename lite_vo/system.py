@@ -220,12 +220,18 @@ def warp_idepth(idepth: np.ndarray, idepth_var: np.ndarray, valid: np.ndarray, T
 
 @functools.lru_cache(maxsize=4)
 def _patch_grid(h: int, w: int) -> np.ndarray:
-    """Points every 4 px (4 px from the border) of an h x w image, float32 (N, 2): where :func:`patch_affine`
-    compares two nearly aligned frames (read-only, shared)."""
+    """Points every 4 px (4 px from the border) of an h x w image, float32 (N, 2), read-only and shared."""
     gy, gx = np.mgrid[4:h - 4:4, 4:w - 4:4]
     grid = np.column_stack([gx.ravel(), gy.ravel()]).astype(np.float32)
     grid.setflags(write=False)
     return grid
+
+
+def _aligned_brightness(image0: np.ndarray, image1: np.ndarray, saturation: float) -> tuple | None:
+    """The brightness change ``I_1 = a I_0 + b`` between two nearly aligned frames (consecutive ones), from
+    :func:`patch_affine` on a grid of patch means; None when it cannot be measured."""
+    grid = _patch_grid(*image0.shape)
+    return patch_affine(image0, image1, grid, grid, saturation)
 
 
 # the back-fill's brightness, measured from frame to frame on a mostly clipped image, drifts by a few
@@ -723,9 +729,7 @@ class VisualOdometry:
             # an exposure step (auto-exposure jumping by more than the bound in one frame) is real when the
             # last tracked frame and this one, nearly the same view, show the same change on patch means
             prev_image, prev_affine = self._prev_tracked
-            image = frame.pyramid[self.track_level]
-            rel = patch_affine(prev_image, image, _patch_grid(*image.shape), _patch_grid(*image.shape),
-                               self.config.tracking.saturation)
+            rel = _aligned_brightness(prev_image, frame.pyramid[self.track_level], self.config.tracking.saturation)
             if rel is not None and not _brightness_disagrees(
                     tr.affine, affine_transfer(ref.affine, compose_affine(prev_affine, rel))):
                 tr.lost_reason = self._tracker.lost_reason(tr, check_residual=self._verifier is None, check_gain=False)
@@ -906,8 +910,8 @@ class VisualOdometry:
                            event="bootstrap", corrections=corrections)
 
     def _backfill_waited(self) -> dict:
-        """Poses for the frames a monocular start skipped (``system.start_max_clipped``), once the start-up
-        is resolved. The current map is warped into the start-up's first frame (its pose and brightness
+        """Poses for the frames a start skipped (:meth:`_waits_for_exposure`), once the start-up is resolved
+        (a depth start: right away). The current map is warped into the start-up's first frame (its pose and brightness
         are known; the skipped frames are its neighbours, mostly clipped in the same places) and each
         skipped frame is tracked against it, newest first, from the previous one's pose and brightness
         (with the backward motion of the last two) until two in a row are lost. The brightness is also
@@ -930,13 +934,12 @@ class VisualOdometry:
         ref_affine = self._start_affine
         T_world_ref = self._start_pose
         pose_ref, affine, step = np.eye(4), ref_affine, np.eye(4)       # pose in the start frame
-        grid = _patch_grid(*start[self.track_level].shape)
         later = start[self.track_level]
         out: dict = {}
         misses = 0
         for index, _, pyramid, sharpness in reversed(waited):
             image = pyramid[self.track_level]
-            rel = patch_affine(later, image, grid, grid, tc.saturation)
+            rel = _aligned_brightness(later, image, tc.saturation)
             later = image
             measured = None if rel is None else compose_affine(affine, rel)
             sigma = self._monitor.tracking_sigma(tc.sigma_i, tc.noise_sigma_gain, sharpness)
