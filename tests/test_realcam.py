@@ -111,6 +111,7 @@ def test_augment_dark_start_ramps_up_from_black_and_cover_blacks_frames_out(tmp_
         assert np.array_equal(out, np.zeros_like(grey) if k in (1, 2) else grey), k
     with pytest.raises(SystemExit, match="--cover"):
         aug.main([str(tmp_path / "src"), str(tmp_path / "bad"), "--cover", "3", "1"])
+    assert not (tmp_path / "bad").exists()                  # checked before anything is written
     # --step K G: the gain times G from frame K on
     assert aug.main([str(tmp_path / "src"), str(tmp_path / "step"), "--step", "2", "0.5"]) == 0
     assert [f["gain"] for f in json.loads((tmp_path / "step" / "augment.json").read_text())["frames"]] == [1, 1, 0.5, 0.5]

@@ -139,6 +139,10 @@ def main(argv=None) -> int:
         raise SystemExit(f"augment: --gain-range {args.gain_range[0]:g} {args.gain_range[1]:g}: need 0 < LO <= HI")
     if args.dark_start < 0:
         raise SystemExit(f"augment: --dark-start {args.dark_start}: need N >= 0")
+    if args.cover is not None and not 0 <= args.cover[0] < args.cover[1]:
+        raise SystemExit(f"augment: --cover {args.cover[0]} {args.cover[1]}: need 0 <= A < B")
+    if args.step is not None and not (args.step[0] >= 0 and args.step[0] == int(args.step[0]) and args.step[1] > 0):
+        raise SystemExit(f"augment: --step {args.step[0]:g} {args.step[1]:g}: need a frame K >= 0 and a gain G > 0")
     if args.jpeg and not 1 <= args.jpeg <= 100:
         raise SystemExit(f"augment: --jpeg {args.jpeg}: quality must be in 1..100")
     shutil.copytree(src, dst, ignore=shutil.ignore_patterns("rgb", "rgb.txt"))
@@ -147,13 +151,9 @@ def main(argv=None) -> int:
     gain, offset = exposure_curve(times, rng, tuple(args.gain_range), args.offset) if args.exposure else (np.ones(len(rows)), np.zeros(len(rows)))
     blur = rng.integers(3, 8, len(rows)) if args.blur else np.ones(len(rows), np.int64)
     if args.cover is not None:
-        if not 0 <= args.cover[0] < args.cover[1]:
-            raise SystemExit(f"augment: --cover {args.cover[0]} {args.cover[1]}: need 0 <= A < B")
         gain[args.cover[0]:args.cover[1]] = 0.0
         offset[args.cover[0]:args.cover[1]] = 0.0
     if args.step is not None:
-        if not (args.step[0] >= 0 and args.step[0] == int(args.step[0]) and args.step[1] > 0):
-            raise SystemExit(f"augment: --step {args.step[0]:g} {args.step[1]:g}: need a frame K >= 0 and a gain G > 0")
         gain[int(args.step[0]):] = gain[int(args.step[0]):] * args.step[1]
     n_dark = min(args.dark_start, len(rows))
     gain[:n_dark] = gain[:n_dark] * (np.arange(n_dark) / max(args.dark_start, 1)) ** 2
