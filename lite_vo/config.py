@@ -75,7 +75,8 @@ class SystemConfig:
                                      "before are tracked backwards once the start-up is resolved (1 = off: start on "
                                      "the first frame)", 0.0, 1.0)
     start_min_textured: float = param(0.2, "... and for a frame with at least this share of its pixels textured enough for "
-                                      "a hypothesis (mapping.min_grad): not black or too dark (a camera still opening)", 0.0, 1.0)
+                                      "a hypothesis (mapping.min_grad): not black or too dark (a camera still opening); "
+                                      "a depth start waits for this one too (0 = off)", 0.0, 1.0)
     start_max_wait_s: float = param(2.0, "longest wait of start_max_clipped / start_min_textured (then the start-up "
                                     "begins anyway)", 0.0, 600.0)
     verify_init: bool = param(True, "check a random initialisation against two-view geometry; re-initialise from two views when they disagree")
