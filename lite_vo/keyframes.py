@@ -255,6 +255,21 @@ class KeyframeStore:
                 self.removed += 1
             self._version += 1
 
+    def rescale_images(self, ratio: np.ndarray) -> None:
+        """Multiply every keyframe's image by ``ratio`` (an (H, W) map at mapping resolution, rounded back
+        to uint8): the run's photometric correction changed (``system.auto_vignette``) and relocalisation
+        compares the keyframes with images corrected the new way."""
+        ratio = np.asarray(ratio, np.float32)
+        with self._lock:
+            out = []
+            for k in self._kfs:
+                if k.image.shape == ratio.shape:
+                    img = np.clip(k.image.astype(np.float32) * ratio + 0.5, 0, 255).astype(np.uint8)
+                    k = dataclasses.replace(k, image=_frozen(img))
+                out.append(k)
+            self._kfs = out
+            self._version += 1
+
     def apply_corrections(self, corrections: dict) -> int:
         """Move keyframes whose frame was re-estimated (``{frame index: T_world_cam or None}``;
         None removes the keyframe). Returns the number of keyframes changed."""

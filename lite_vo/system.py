@@ -129,6 +129,7 @@ class _Reference:
     tracking_ref: Any
     map: PublishedMap
     affine: tuple = (1.0, 0.0)   # brightness (A, B) of the reference frame: I = A * J + B
+    vig: int = 0                 # the photometric correction its image is in (system.auto_vignette)
 
     @property
     def T_world_ref(self) -> np.ndarray:
@@ -155,6 +156,7 @@ class _Frame:
     noise_sigma: float = float("nan")  # smoothed image noise estimate (grey levels)
     rectify_depth: Any = None          # native depth -> mapping resolution (the system's rectifier)
     corner_image: np.ndarray | None = None  # at the start-up corners' resolution, while they are followed
+    vig: int = 0                      # the photometric correction its image is in (system.auto_vignette)
     _depth_m: np.ndarray | None = None
 
     @property
@@ -308,6 +310,17 @@ class VisualOdometry:
         self._velocity = np.eye(4)
         self._lost_count = 0
         self._photometric = photometric
+        # the vignette estimated during the run (system.auto_vignette): fed the published maps (under
+        # _vig_lock), it hands a new correction to _vig_pending; the tracking thread adopts it between
+        # start-ups (_vig_version; _vig_inv: version -> inverse vignette at mapping resolution, None = 1)
+        self._vignette = None
+        if config.system.auto_vignette and (photometric is None or photometric.vignette is None):
+            from .vignette import OnlineVignette
+            self._vignette = OnlineVignette(self.map_intrinsics)
+        self._vig_lock = threading.Lock()
+        self._vig_inv: dict[int, np.ndarray | None] = {0: None}
+        self._vig_version = 0
+        self._vig_pending: tuple | None = None
         self._monitor = PhotometricMonitor(config.system.blur_window, config.tracking.noise_smoothing)
         self._recent_affine: dict[int, tuple] = {}   # frame index -> brightness, for the bootstrap replay
         self._index = 0
@@ -513,14 +526,19 @@ class VisualOdometry:
         if self._photometric is not None:
             image = self._photometric.correct(image, self._photometric.exposure_at(timestamp))
         img = self._rectifier(image)
+        clipped = float(np.count_nonzero(img >= self.config.mapping.saturation)) / img.size
+        if self._vig_pending is not None and self._verifier is None:
+            self._adopt_vignette()
+        inv = self._vig_inv[self._vig_version]
+        if inv is not None:
+            img = np.multiply(img, inv, dtype=np.float32)
         sharp = self._monitor.sharpness(img)
         pyr = image_pyramid(img, self.config.resolution.pyramid_levels)
         self.timers.add("preprocess", (time.perf_counter() - t) * 1e3)
         if self._t0 is None:
             self._t0 = float(timestamp)
-        clipped = float(np.count_nonzero(img >= self.config.mapping.saturation)) / img.size
         frame = _Frame(self._index, float(timestamp), img, pyr, depth, sharpness=sharp, color=color,
-                       rectify_depth=self._rectifier.depth, clipped=clipped)
+                       rectify_depth=self._rectifier.depth, clipped=clipped, vig=self._vig_version)
         if self._corner_rectifier is not None and (
                 not self._initialized or self._verifier is not None
                 or self._lost_count + 1 >= self.config.system.max_lost_frames):
@@ -542,6 +560,64 @@ class VisualOdometry:
             self._reference = ref
             self._published.append(ref.map)
         self._offer_keyframe(ref.map, frame)
+        if self._vignette is not None and not self._vignette.done and self._verifier is None:
+            t = time.perf_counter()
+            with self._vig_lock:
+                inv = self._vignette.offer(ref.map, ref.vig)
+                if inv is not None:
+                    self._vig_pending = (self._vignette.version, inv)
+            self.timers.add("vignette", (time.perf_counter() - t) * 1e3)
+
+    # ------------------------------------------------------------------ the vignette estimated during the run
+    @property
+    def vignette_estimate(self):
+        """The :class:`~lite_vo.vignette.OnlineVignette` of ``system.auto_vignette`` (``version``: corrections
+        applied so far, ``vignette``: the newest at mapping resolution, ``done`` / ``reason``), or None when off."""
+        return self._vignette
+
+    def _vig_ratio(self, old: int, new: int) -> np.ndarray | None:
+        """The image in correction ``new`` over the same image in correction ``old`` (None: the same)."""
+        if old == new:
+            return None
+        a, b = self._vig_inv[old], self._vig_inv[new]
+        one = np.ones(self.map_intrinsics.height * self.map_intrinsics.width, np.float32).reshape(
+            self.map_intrinsics.height, self.map_intrinsics.width)
+        return (one if b is None else b) / (one if a is None else a)
+
+    def _adopt_vignette(self) -> None:
+        """Tracking thread, between start-ups: the frames from this one on are corrected with the newest
+        estimate; the keyframes' images are re-expressed in it (the tracking reference and the mapper's
+        images follow when they next meet a frame of the new correction)."""
+        with self._vig_lock:
+            version, inv = self._vig_pending
+            self._vig_pending = None
+            old = self._vig_version
+            self._vig_inv[version] = inv
+            self._vig_version = version
+            self.keyframes.rescale_images(self._vig_ratio(old, version))
+        log.info("frame %d on: images corrected with the vignette estimated during the run (correction %d)",
+                 self._index, version)
+
+    def _in_correction(self, ref: _Reference, vig: int) -> _Reference:
+        """``ref`` with its image in correction ``vig`` (rebuilt once per new correction; the system's
+        current reference is replaced by the rebuilt one unless a newer map arrived meanwhile)."""
+        if ref.vig == vig:
+            return ref
+        m = ref.map
+        img = np.multiply(m.image, self._vig_ratio(ref.vig, vig), dtype=np.float32)
+        img.setflags(write=False)
+        frame = _Frame(m.frame_index, m.timestamp, img, image_pyramid(img, self.config.resolution.pyramid_levels),
+                       None, T_world_cam=np.array(m.T_world_cam), affine=ref.affine, vig=vig)
+        new = self._build_reference(frame, m.idepth_raw, m.idepth_var_raw, m.valid)
+        with self._ref_lock:
+            if self._reference is ref:
+                self._reference = new
+        return new
+
+    def _mapper_in_correction(self, mapper, vig: int) -> None:
+        """Re-express ``mapper``'s stored images in correction ``vig`` when they are in another one."""
+        if mapper.image_version != vig:
+            mapper.rescale_images(self._vig_ratio(mapper.image_version, vig), vig)
 
     def _offer_keyframe(self, m: PublishedMap, frame: _Frame) -> None:
         """Keep the map as a keyframe when the camera moved enough since the last one."""
@@ -552,8 +628,12 @@ class VisualOdometry:
             color = color(self._rectifier.color_reduction)
         if color is not None:
             color = self._rectifier.color(color)
-        self.keyframes.add(Keyframe.make(m.frame_index, m.timestamp, m.T_world_cam, m.camera, m.image, m.idepth,
-                                         m.idepth_var, color, self._scale_id))
+        with self._vig_lock:            # the store holds images in the newest adopted correction
+            image = m.image
+            if frame.vig != self._vig_version:
+                image = np.multiply(image, self._vig_ratio(frame.vig, self._vig_version), dtype=np.float32)
+            self.keyframes.add(Keyframe.make(m.frame_index, m.timestamp, m.T_world_cam, m.camera, image, m.idepth,
+                                             m.idepth_var, color, self._scale_id))
 
     def _build_reference(self, frame: _Frame, idepth, idepth_var, valid) -> _Reference:
         t = time.perf_counter()
@@ -569,7 +649,7 @@ class VisualOdometry:
         T = frame.T_world_cam.copy()
         T.setflags(write=False)
         published = PublishedMap(frame.index, frame.timestamp, T, self.map_intrinsics, frame.image, *arrays)
-        return _Reference(tref, published, affine=frame.affine)
+        return _Reference(tref, published, affine=frame.affine, vig=frame.vig)
 
     def _new_mapper(self):
         seed = self._rng_seed + self._mapper_count
@@ -595,6 +675,7 @@ class VisualOdometry:
         frame.affine = self._monitor.affine          # the new map keeps the brightness chain
         mf = MapFrame(frame.index, frame.timestamp, frame.image, T_world_cam, 0.0, frame.affine, frame.noise_sigma)
         mapper = self._new_mapper()
+        mapper.image_version = frame.vig
         if self._initialized and not use_depth and self.pose_source == "estimate":
             self._scale_id += 1             # a new monocular map: a new scale
         if use_depth:
@@ -693,7 +774,7 @@ class VisualOdometry:
             result = self._initialize(frame, np.eye(4), "init")
             self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
             return result
-        ref = self._current_reference()
+        ref = self._in_correction(self._current_reference(), frame.vig)
         T_ref_world = inverse_se3(ref.T_world_ref)
         base = self._last_pose if self._lost_count == 0 else self._last_good_pose
         guess_world = base @ self._velocity if self.config.tracking.constant_velocity else base
@@ -806,8 +887,9 @@ class VisualOdometry:
         img = np.asarray(kf.image, dtype=np.float32)
         kf_frame = _Frame(kf.index, kf.timestamp, img, image_pyramid(img, self.config.resolution.pyramid_levels),
                           None, T_world_cam=np.array(kf.T_world_cam, dtype=np.float64),
-                          affine=self._monitor.affine)
+                          affine=self._monitor.affine, vig=self._vig_version)     # the store is in the newest correction
         mapper = self._new_mapper()
+        mapper.image_version = self._vig_version
         mapper.initialize_from_idepth(MapFrame(kf.index, kf.timestamp, img, kf_frame.T_world_cam, 0.0,
                                                kf_frame.affine), kf.idepth, kf.idepth_var)
         idepth, idepth_var, valid = mapper.current()
@@ -864,6 +946,7 @@ class VisualOdometry:
         t = time.perf_counter()
         boot_world = boot.T_world_init
         mapper = self._new_mapper()
+        mapper.image_version = frame.vig      # no new correction is adopted during a start-up
         idx0, ts0, img0 = boot.frames[0]
         # an empty map: with these poses, stereo searches the full depth range and creates the
         # hypotheses itself (a random prior would keep pixels whose guess is off by > 2 sigma)
@@ -1004,6 +1087,7 @@ class VisualOdometry:
         ref = self._current_reference()
         if ref is None:
             return {}
+        ref = self._in_correction(ref, frame.vig)
         sigma = self._tracking_sigma(frame)
         T_ref_new = inverse_se3(ref.T_world_ref) @ frame.T_world_cam
         tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_ref_new, self._monitor.affine_guess(ref.affine), sigma)
@@ -1061,6 +1145,7 @@ class VisualOdometry:
         if self._thread is None:  # sync
             if not self._mapping_due(frame):
                 # not mapped, but still a stereo reference for later frames
+                self._mapper_in_correction(self._mapper, frame.vig)
                 self._mapper.add_reference(MapFrame(frame.index, frame.timestamp, frame.image,
                                                     frame.T_world_cam, frame.residual, frame.affine,
                                                     frame.noise_sigma))
@@ -1103,6 +1188,7 @@ class VisualOdometry:
             return  # tracked against a map that was replaced meanwhile (other scale): skip it
         mf = MapFrame(frame.index, frame.timestamp, frame.image, frame.T_world_cam, frame.residual, frame.affine,
                       frame.noise_sigma)
+        self._mapper_in_correction(mapper, frame.vig)
         stats = mapper.update(mf)
         for name, ms in stats.stage_ms.items():
             self.timers.add(name, ms)

@@ -335,3 +335,111 @@ class VignetteSink(OutputSink):
         f = self.fit
         log.info("vignette: %.1f %% +- %.1f at the corners (%d pairs of maps, %d points) -> %s",
                  100 * f.corner, 100 * f.corner_std, f.pairs, f.samples, path)
+
+
+#: an online estimate is fitted once this many usable pairs of maps were collected in one correction's images
+ONLINE_PAIRS = 6
+#: each published map is paired with this many maps before it (all within MAX_FRAME_GAP frames)
+ONLINE_PARTNERS = 3
+#: correspondences kept per pair online (a fit over 12 pairs then takes a few milliseconds)
+ONLINE_POINTS_PER_PAIR = 2000
+#: a first estimate whose corners are at least this bright (relative to the centre) is no vignette worth
+#: correcting: the estimator stops and the images stay as they are (clean ICL: 98 %)
+ONLINE_MIN_CORNER_DROP = 0.07
+#: a later round whose residual correction moves the corners by less than this ends the estimate
+ONLINE_CONVERGED = 0.02
+#: at most this many corrections are applied (each round fits what the previous ones left)
+ONLINE_MAX_ROUNDS = 2
+#: give up when this many pairs in one round did not give an acceptable fit (a camera that hardly moves)
+ONLINE_MAX_PAIRS = 60
+
+
+class OnlineVignette:
+    """The vignette estimated while the VO runs (``system.auto_vignette``), so a camera nobody calibrated
+    gets its darker corners corrected from the run's first seconds on.
+
+    Fed every published map (:meth:`offer`, with the correction its frame's image was made with);
+    once :data:`ONLINE_PAIRS` consecutive pairs of maps were collected, fits :func:`fit_vignette` to
+    them. An estimate that passes :func:`fit_problem` and darkens the corners by more than
+    :data:`ONLINE_MIN_CORNER_DROP` becomes the correction of the following frames (:meth:`offer`
+    returns the new inverse vignette at mapping resolution; the caller applies it and re-expresses its
+    stored images in it). Maps made with the new correction then give what is left (the first pass's
+    maps were built from vignetted images, which flattens the fall-off), and the product is applied
+    again, until a round changes the corners by less than :data:`ONLINE_CONVERGED` or after
+    :data:`ONLINE_MAX_ROUNDS` corrections. A first estimate with brighter corners (or none at all
+    within :data:`ONLINE_MAX_PAIRS` pairs) ends it without a change. ``camera``: the mapping
+    resolution's :class:`~lite_vo.camera.PinholeIntrinsics`.
+    """
+
+    def __init__(self, camera) -> None:
+        self.frame = radial_frame(camera)
+        h, w = int(camera.height), int(camera.width)
+        ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+        self._r2 = radius2(xs, ys, self.frame)
+        self.vignette = np.ones((h, w))         # the correction applied so far (maximum 1)
+        self.version = 0                        # how many corrections were applied
+        self.done = False
+        self.fits: list[VignetteFit] = []       # the accepted fits, in order
+        self.reason = ""                        # why it ended
+        self._pairs: list[PairSamples] = []
+        self._tried = 0
+        self._previous: list = []              # the latest maps (each new map is paired with them)
+
+    @property
+    def corner(self) -> float:
+        """The correction's brightness in its darkest image corner (1 before the first correction)."""
+        v = self.vignette
+        return float(min(v[0, 0], v[0, -1], v[-1, 0], v[-1, -1]))
+
+    def offer(self, published, version: int) -> np.ndarray | None:
+        """A published map whose image was corrected with correction ``version``. Returns the inverse
+        of a new correction (float32, mapping resolution; multiply the images with it) when one was
+        accepted, else None."""
+        if self.done:
+            return None
+        if version != self.version:             # made before the last correction reached the frames
+            self._previous = []
+            return None
+        previous = self._previous
+        self._previous = (previous + [published])[-ONLINE_PARTNERS:]
+        new = [p for p in (correspondences(q, published, ONLINE_POINTS_PER_PAIR) for q in previous) if p is not None]
+        if not new:
+            return None
+        self._pairs.extend(new)
+        self._tried += len(new)
+        if len(self._pairs) < ONLINE_PAIRS:
+            return None
+        try:
+            fit = fit_vignette(self._pairs, self.frame)
+        except InputError:
+            fit = None
+        problem = "no fit" if fit is None else fit_problem(fit)
+        if problem:
+            if self._tried >= ONLINE_MAX_PAIRS:
+                self._finish(f"no estimate after {self._tried} pairs of maps ({problem})")
+            else:
+                self._pairs = self._pairs[-(2 * ONLINE_PAIRS):]      # keep collecting, the latest pairs
+            return None
+        if self.version == 0 and fit.corner >= 1.0 - ONLINE_MIN_CORNER_DROP:
+            self._finish(f"no vignetting to correct (corners {100 * fit.corner:.1f} +- {100 * fit.corner_std:.1f} %)")
+            return None
+        if self.version > 0 and abs(fit.corner - 1.0) < ONLINE_CONVERGED:
+            self._finish(f"converged (what was left: {100 * fit.corner:.1f} % at the corners)")
+            return None
+        v = self.vignette * vignette_of(fit.k, self._r2)
+        v = np.clip(v / v.max(), 1e-3, None)
+        self.vignette = v
+        self.fits.append(fit)
+        self.version += 1
+        self._pairs, self._tried, self._previous = [], 0, []
+        log.info("vignette estimated during the run (correction %d): %.1f %% at the corners (%d pairs of maps)",
+                 self.version, 100 * self.corner, fit.pairs)
+        if self.version >= ONLINE_MAX_ROUNDS:
+            self._finish(f"{self.version} corrections applied")
+        return (1.0 / v).astype(np.float32)
+
+    def _finish(self, reason: str) -> None:
+        self.done = True
+        self.reason = reason
+        self._pairs, self._previous = [], []
+        log.info("vignette estimate during the run ended: %s", reason)

@@ -201,6 +201,7 @@ class Mapper:
         self._per_search_ms: float | None = None
         self.last_stats = MappingStats()
         self.measure_cpu = False    # also record each stage's CPU time (benchmarks; costs a clock read per stage)
+        self.image_version = 0      # the photometric correction its images are in (rescale_images)
 
     # ------------------------------------------------------------------ helpers
     def _check_frame(self, frame: MapFrame, gradients: bool = True) -> _Prepared:
@@ -222,6 +223,22 @@ class Mapper:
     def frame(self) -> MapFrame | None:
         """The frame the current map lives in."""
         return None if self._cur is None else self._cur.frame
+
+    def rescale_images(self, ratio: np.ndarray, version: int) -> None:
+        """Re-express the stored images (the stereo references and the current frame, whose gradients
+        are recomputed) in a new photometric correction: each is multiplied by ``ratio`` ((H, W), the new
+        correction over the old one); ``version`` becomes :attr:`image_version`, the correction the
+        frames given to :meth:`update` / :meth:`add_reference` are expected in."""
+        ratio = np.asarray(ratio, np.float32)
+        if ratio.shape != (self.h, self.w):
+            raise InputError(f"Mapper.rescale_images: ratio has shape {ratio.shape}, expected {(self.h, self.w)}")
+        for _, slot in self._buffer:
+            self._buf_images[slot] *= ratio
+        if self._cur is not None:
+            img = self._cur.image * ratio
+            gx, gy, mg = image_gradients(img)
+            self._cur = _Prepared(self._cur.frame, img, gx, gy, mg)
+        self.image_version = int(version)
 
     # ------------------------------------------------------------------ initialisation
     def _reset(self, prep: _Prepared) -> None:

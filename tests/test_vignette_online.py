@@ -1,0 +1,98 @@
+"""The vignette estimated while the VO runs (``system.auto_vignette``, lite_vo.vignette.OnlineVignette)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_vignette import _vignetted_copy
+
+import lite_vo
+from lite_vo.camera import PinholeIntrinsics
+from lite_vo.errors import InputError
+from lite_vo.keyframes import Keyframe, KeyframeStore
+from lite_vo.mapping import MapFrame, Mapper, MappingConfig
+from lite_vo.mapping.mapper import image_gradients
+
+
+@pytest.fixture(scope="module")
+def synth_90(tmp_path_factory):
+    """90 frames (3 s) of the synthetic room, hand-held, 320x240, seed 0: the start-up takes the first
+    second, the estimate needs a few maps after it."""
+    from lite_vo.synth import generate_sequence
+    out = tmp_path_factory.mktemp("synth90") / "room"
+    generate_sequence(out, scene="room", trajectory="handheld", n_frames=90, seed=0, width=320, height=240)
+    return out
+
+
+def _run(seq, auto: bool):
+    opened = lite_vo.open_sequence(seq)
+    cfg = lite_vo.load_profile("phone", ['system.mode="sync"', f"system.auto_vignette={str(auto).lower()}"])
+    vo = lite_vo.VisualOdometry(opened.camera, cfg)
+    poses, vigs = [], []
+    try:
+        for fr in opened:
+            r = vo.process(fr.image, fr.timestamp)
+            poses.append(None if r.T_world_cam is None else r.T_world_cam.copy())
+            vigs.append(vo._vig_version)
+    finally:
+        vo.close()
+    return vo, poses, vigs
+
+
+def test_a_vignetted_camera_is_corrected_during_the_run_and_a_clean_one_is_left_alone(synth_90, tmp_path):
+    seq = tmp_path / "vig"
+    _vignetted_copy(synth_90, seq)                   # 50 % at the corners
+    vo, poses, vigs = _run(seq, True)
+    est = vo.vignette_estimate
+    assert est is not None and est.version >= 1         # adopted while the run went on ...
+    first = vigs.index(1)
+    assert 0 < first < len(vigs) - 5                    # ... from a frame in the middle of the run on
+    assert all(v >= 1 for v in vigs[first:])
+    assert abs(est.corner - 0.5) < 0.1                  # 1.0 without the estimate
+    assert all(p is not None for p in poses[first:])    # the switch loses no frame
+    # the centre stays as it was, the corners are brightened by the inverse
+    assert est.vignette[120, 160] > 0.97 and est.vignette[0, 0] < 0.6
+    # the clean room: the estimate finds no vignette worth correcting, and the run is the same as with it off
+    vo_on, poses_on, vigs_on = _run(synth_90, True)
+    _, poses_off, _ = _run(synth_90, False)
+    assert set(vigs_on) == {0}
+    assert vo_on.vignette_estimate.done and "no vignetting" in vo_on.vignette_estimate.reason
+    for a, b in zip(poses_on, poses_off):
+        assert (a is None and b is None) or np.array_equal(a, b)
+    # off by default
+    assert lite_vo.load_profile("phone").system.auto_vignette is False
+
+
+def test_the_mapper_re_expresses_its_images_in_a_new_correction():
+    cam = PinholeIntrinsics(100.0, 100.0, 31.5, 23.5, 64, 48)
+    m = Mapper(MappingConfig(), cam, seed=0)
+    rng = np.random.default_rng(3)
+    imgs = [rng.uniform(0, 200, (48, 64)).astype(np.float32) for _ in range(3)]
+    m.initialize_random(MapFrame(0, 0.0, imgs[0], np.eye(4)))
+    m.add_reference(MapFrame(1, 0.1, imgs[1], np.eye(4)))
+    ratio = np.linspace(1.0, 2.0, 64, dtype=np.float32)[None, :].repeat(48, 0)
+    before = {slot: m._buf_images[slot].copy() for _, slot in m._buffer}
+    m.rescale_images(ratio, 1)
+    assert m.image_version == 1
+    for slot, img in before.items():
+        np.testing.assert_allclose(m._buf_images[slot], img * ratio, rtol=1e-6)
+    np.testing.assert_allclose(m._cur.image, imgs[0] * ratio, rtol=1e-6)
+    gx, gy, mg = image_gradients(imgs[0] * ratio)
+    np.testing.assert_allclose(m._cur.gx, gx, rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(m._cur.maxgrad, mg, rtol=1e-5, atol=1e-4)
+    with pytest.raises(InputError, match="ratio has shape"):
+        m.rescale_images(np.ones((10, 10), np.float32), 2)
+
+
+def test_the_keyframe_store_re_expresses_its_images():
+    cam = PinholeIntrinsics(100.0, 100.0, 31.5, 23.5, 64, 48)
+    store = KeyframeStore()
+    img = np.full((48, 64), 100, np.uint8)
+    idepth = np.full((48, 64), 0.5, np.float32)
+    store.add(Keyframe.make(0, 0.0, np.eye(4), cam, img, idepth, idepth * 0.01))
+    ratio = np.ones((48, 64), np.float32)
+    ratio[:, :32] = 3.0
+    store.rescale_images(ratio)
+    kf = store.snapshot()[0]
+    assert kf.image.dtype == np.uint8 and not kf.image.flags.writeable
+    assert np.all(kf.image[:, :32] == 255) and np.all(kf.image[:, 32:] == 100)     # clipped at white
+    np.testing.assert_allclose(np.nan_to_num(kf.idepth), idepth)
