@@ -315,7 +315,7 @@ class VisualOdometry:
         # start-ups (_vig_version; _vig_inv: version -> inverse vignette at mapping resolution, None = 1)
         self._vignette = None
         if config.system.auto_vignette and (photometric is None or photometric.vignette is None):
-            from .vignette import OnlineVignette
+            from .vignette_fit import OnlineVignette
             self._vignette = OnlineVignette(self.map_intrinsics)
         self._vig_lock = threading.Lock()
         self._vig_inv: dict[int, np.ndarray | None] = {0: None}
