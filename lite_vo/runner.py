@@ -7,6 +7,8 @@ No argparse here; the CLI module parses and calls :func:`run_sequence`. Imports 
 """
 from __future__ import annotations
 
+import dataclasses
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -15,6 +17,8 @@ from .errors import InputError
 from .io import prepare_output_dir
 from .session import Session
 from .sinks import MapSink, ProgressSink, RunInfoSink, TrajectoryExportSink, TrajectorySink
+
+log = logging.getLogger(__name__)
 
 RUN_OUTPUTS = ("trajectory.txt", "timing.json", "run.json", "map.ply", "depth_accuracy.json", "depth_error.png",
                "trajectory_kitti.txt", "times.txt", "trajectory.png", "vignette.png", "vignette.json",
@@ -54,6 +58,11 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
     if plot:
         from .plots import require_matplotlib
         require_matplotlib()                  # before the run, not after it
+    if estimate_vignette and config.system.auto_vignette:
+        # the estimate is fitted to maps of images as they come: a correction made during the run would mix in
+        log.warning("--estimate-vignette: system.auto_vignette is turned off for this run (the estimate is made from "
+                    "the images as they come)")
+        config = dataclasses.replace(config, system=dataclasses.replace(config.system, auto_vignette=False))
     session = Session(sequence, config, depth_source=depth_source, pose_source=pose_source,
                       start_frame=start_frame, max_frames=max_frames, max_bad_frames=max_bad_frames,
                       profile_name=profile_name, calib=calib, photometric=photometric)

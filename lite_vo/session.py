@@ -89,6 +89,7 @@ class RunEnd:
     depth_accuracy_series: Any = field(default_factory=list)  # rows (dicts): a list or a records.RowRecord
     error: str | None = None
     frames_read: int = 0
+    vignette: dict | None = None           # the vignette estimated during the run (system.auto_vignette), if on
 
 
 class OutputSink:
@@ -326,7 +327,8 @@ class Session:
         timing["warmup_s"] = warmup_s
         end = RunEnd(status=status, frames=frames, timing=timing, events=events,
                      metric=bool(vo.metric or self.pose_source == "gt"),
-                     depth_accuracy_series=vo.depth_accuracy_series, error=error, frames_read=read)
+                     depth_accuracy_series=vo.depth_accuracy_series, error=error, frames_read=read,
+                     vignette=vo.vignette_summary())
         # the exports (map.ply, plots) reuse the memory of the VO's working state (the keyframe store
         # stays: the sinks have it): on ICL, board, the end-of-run peak stays at the frame loop's
         del vo

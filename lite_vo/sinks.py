@@ -173,6 +173,8 @@ class RunInfoSink(OutputSink):
             "events": end.events[:1000]}
         if end.error:
             self.info["error"] = end.error
+        if end.vignette is not None:
+            self.info["vignette_during_run"] = end.vignette
         self.timing = end.timing
         self._write_json("timing.json", end.timing)
         self._write_json("run.json", self.info)

@@ -321,6 +321,7 @@ class VisualOdometry:
         self._vig_inv: dict[int, np.ndarray | None] = {0: None}
         self._vig_version = 0
         self._vig_pending: tuple | None = None
+        self._vig_from: list[int] = []        # the first frame of each adopted correction
         self._monitor = PhotometricMonitor(config.system.blur_window, config.tracking.noise_smoothing)
         self._recent_affine: dict[int, tuple] = {}   # frame index -> brightness, for the bootstrap replay
         self._index = 0
@@ -561,14 +562,25 @@ class VisualOdometry:
             self._published.append(ref.map)
         self._offer_keyframe(ref.map, frame)
         if self._vignette is not None and not self._vignette.done and self._verifier is None:
-            t = time.perf_counter()
-            with self._vig_lock:
-                inv = self._vignette.offer(ref.map, ref.vig)
-                if inv is not None:
-                    self._vig_pending = (self._vignette.version, inv)
-            self.timers.add("vignette", (time.perf_counter() - t) * 1e3)
+            self._offer_to_vignette([ref.map], ref.vig)
 
     # ------------------------------------------------------------------ the vignette estimated during the run
+    def vignette_summary(self) -> dict | None:
+        """What the vignette estimate during the run did (run.json ``vignette_during_run``), None when off."""
+        v = self._vignette
+        if v is None:
+            return None
+        return {"corrections": len(self._vig_from), "from_frames": list(self._vig_from),
+                "corner": v.corner if self._vig_from else 1.0, "ended": v.reason if v.done else "still estimating"}
+
+    def _offer_to_vignette(self, maps: list, vig: int) -> None:
+        t = time.perf_counter()
+        with self._vig_lock:
+            inv = self._vignette.offer_maps(maps, vig)
+            if inv is not None:
+                self._vig_pending = (self._vignette.version, inv)
+        self.timers.add("vignette", (time.perf_counter() - t) * 1e3)
+
     @property
     def vignette_estimate(self):
         """The :class:`~lite_vo.vignette.OnlineVignette` of ``system.auto_vignette`` (``version``: corrections
@@ -584,7 +596,7 @@ class VisualOdometry:
             self.map_intrinsics.height, self.map_intrinsics.width)
         return (one if b is None else b) / (one if a is None else a)
 
-    def _adopt_vignette(self) -> None:
+    def _adopt_vignette(self, first: int | None = None) -> None:
         """Tracking thread, between start-ups: the frames from this one on are corrected with the newest
         estimate; the keyframes' images are re-expressed in it (the tracking reference and the mapper's
         images follow when they next meet a frame of the new correction)."""
@@ -595,8 +607,9 @@ class VisualOdometry:
             self._vig_inv[version] = inv
             self._vig_version = version
             self.keyframes.rescale_images(self._vig_ratio(old, version))
+            self._vig_from.append(self._index if first is None else first)
         log.info("frame %d on: images corrected with the vignette estimated during the run (correction %d)",
-                 self._index, version)
+                 self._index if first is None else first, version)
 
     def _in_correction(self, ref: _Reference, vig: int) -> _Reference:
         """``ref`` with its image in correction ``vig`` (rebuilt once per new correction; the system's
@@ -664,7 +677,13 @@ class VisualOdometry:
         with self._ref_lock:
             self._mapper = mapper
         self._tracker.reset_motion_history()
+        self._restart_vignette_pairs()
         self._publish(ref, mapper, frame)
+
+    def _restart_vignette_pairs(self) -> None:
+        if self._vignette is not None:
+            with self._vig_lock:
+                self._vignette.restart()
 
     def _initialize(self, frame: _Frame, T_world_cam: np.ndarray, event: str) -> FrameResult:
         """(Re-)initialise the map in ``frame`` (depth image or random depth) with a new mapper."""
@@ -701,6 +720,7 @@ class VisualOdometry:
                                           frame.index, frame.timestamp, self.config.tracking.saturation,
                                           self._corner_rectifier.intrinsics if fine else None, frame.corner_image)
             self._recent_affine[frame.index] = frame.affine
+            self._restart_vignette_pairs()     # the random map is no vignette evidence
         frame.corner_image = None
         if event == "init":
             self._start_pose, self._start_affine = T_world_cam.copy(), frame.affine
@@ -957,13 +977,41 @@ class VisualOdometry:
             # chained estimate, and a chained one may have drifted with the random map
             for idx, rel in boot.affine_j_init.items():
                 aff[idx] = compose_affine(aff0, rel)
-        mapper.initialize_from_depth(MapFrame(idx0, ts0, img0, boot_world, 0.0, aff0), np.zeros_like(img0))
         posed = [f for f in boot.frames[1:] if boot.T_j_init.get(f[0]) is not None]
         every = self.config.system.bootstrap_replay_every
         replay = [f for k, f in enumerate(posed) if (len(posed) - 1 - k) % every == 0]
-        for idx, ts, img in replay:
-            T = boot_world @ inverse_se3(boot.T_j_init[idx])
-            mapper.update(MapFrame(idx, ts, img, T, 0.0, aff.get(idx, (1.0, 0.0))))
+        estimating = self._vignette is not None and not self._vignette.done
+
+        def replayed_map(ratio):
+            """The depth filter replayed over the start-up's frames (images times ``ratio``, if any), and
+            its maps when the vignette is being estimated."""
+            mapper.initialize_from_depth(MapFrame(idx0, ts0, img0 if ratio is None else img0 * ratio, boot_world, 0.0,
+                                                  aff0), np.zeros_like(img0))
+            maps = []
+            for idx, ts, img in replay:
+                T = boot_world @ inverse_se3(boot.T_j_init[idx])
+                img = img if ratio is None else img * ratio
+                mapper.update(MapFrame(idx, ts, img, T, 0.0, aff.get(idx, (1.0, 0.0))))
+                if estimating:
+                    maps.append(PublishedMap(idx, ts, T, self.map_intrinsics, img, *mapper.current()))
+            return maps
+
+        replayed = replayed_map(None)
+        if replayed:        # the replayed maps give the vignette estimate its first pairs right away ...
+            self._restart_vignette_pairs()
+            self._offer_to_vignette(replayed, frame.vig)
+            if self._vig_pending is not None:
+                # ... and when they give one, the start-up's map is rebuilt from corrected images and the
+                # run goes on in the correction from this frame on
+                old = frame.vig
+                self._adopt_vignette(frame.index)
+                ratio = self._vig_ratio(old, self._vig_version)
+                mapper = self._new_mapper()
+                mapper.image_version = self._vig_version
+                replayed_map(ratio)
+                frame.image = np.multiply(frame.image, ratio, dtype=np.float32)
+                frame.pyramid = image_pyramid(frame.image, self.config.resolution.pyramid_levels)
+                frame.vig = self._vig_version
         T_world_cur = project_to_se3(boot_world @ inverse_se3(boot.T_cur_init))
         frame.T_world_cam = T_world_cur
         if frame.index in boot.affine_j_init and self.config.tracking.affine_brightness:

@@ -263,6 +263,8 @@ ONLINE_MIN_CORNER_DROP = 0.07
 ONLINE_CONVERGED = 0.02
 #: at most this many corrections are applied (each round fits what the previous ones left)
 ONLINE_MAX_ROUNDS = 2
+#: a fit uses at most the latest this many pairs
+ONLINE_MAX_FIT_PAIRS = 24
 #: give up when this many pairs in one round did not give an acceptable fit (a camera that hardly moves)
 ONLINE_MAX_PAIRS = 60
 
@@ -308,33 +310,37 @@ class OnlineVignette:
         """A published map whose image was corrected with correction ``version``. Returns the inverse
         of a new correction (float32, mapping resolution; multiply the images with it) when one was
         accepted, else None."""
+        return self.offer_maps([published], version)
+
+    def offer_maps(self, maps: list, version: int) -> np.ndarray | None:
+        """Several consecutive maps at once (the start-up's replayed maps: one fit over all of them)."""
         if self.done:
             return None
         if version != self.version:             # made before the last correction reached the frames
             self._previous = []
             return None
-        previous = self._previous
-        self._previous = (previous + [published])[-ONLINE_PARTNERS:]
-        new = [p for p in (correspondences(q, published, ONLINE_POINTS_PER_PAIR) for q in previous) if p is not None]
-        if not new:
-            return None
-        self._pairs.extend(new)
-        self._tried += len(new)
+        for published in maps:
+            previous = self._previous
+            self._previous = (previous + [published])[-ONLINE_PARTNERS:]
+            new = [p for p in (correspondences(q, published, ONLINE_POINTS_PER_PAIR) for q in previous)
+                   if p is not None]
+            self._pairs.extend(new)
+            self._tried += len(new)
+        self._pairs = self._pairs[-ONLINE_MAX_FIT_PAIRS:]
         if len(self._pairs) < ONLINE_PAIRS:
             return None
         try:
             fit = fit_vignette(self._pairs, self.frame)
         except InputError:
             fit = None
+        if (self.version == 0 and fit is not None and fit.corner_std <= MAX_CORNER_STD
+                and fit.corner >= 1.0 - ONLINE_MIN_CORNER_DROP):
+            self._finish(f"no vignetting to correct (corners {100 * fit.corner:.1f} +- {100 * fit.corner_std:.1f} %)")
+            return None
         problem = "no fit" if fit is None else fit_problem(fit)
         if problem:
             if self._tried >= ONLINE_MAX_PAIRS:
-                self._finish(f"no estimate after {self._tried} pairs of maps ({problem})")
-            else:
-                self._pairs = self._pairs[-(2 * ONLINE_PAIRS):]      # keep collecting, the latest pairs
-            return None
-        if self.version == 0 and fit.corner >= 1.0 - ONLINE_MIN_CORNER_DROP:
-            self._finish(f"no vignetting to correct (corners {100 * fit.corner:.1f} +- {100 * fit.corner_std:.1f} %)")
+                self._finish(f"no estimate after {self._tried} pairs of maps; the last fit: {problem}")
             return None
         if self.version > 0 and abs(fit.corner - 1.0) < ONLINE_CONVERGED:
             self._finish(f"converged (what was left: {100 * fit.corner:.1f} % at the corners)")
@@ -350,6 +356,11 @@ class OnlineVignette:
         if self.version >= ONLINE_MAX_ROUNDS:
             self._finish(f"{self.version} corrections applied")
         return (1.0 / v).astype(np.float32)
+
+    def restart(self) -> None:
+        """A new map (another scale, or an unverified random one): the next map is not paired with the
+        ones before (the pairs collected so far stay: each is consistent in itself)."""
+        self._previous = []
 
     def _finish(self, reason: str) -> None:
         self.done = True

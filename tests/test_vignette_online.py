@@ -27,33 +27,35 @@ def _run(seq, auto: bool):
     opened = lite_vo.open_sequence(seq)
     cfg = lite_vo.load_profile("phone", ['system.mode="sync"', f"system.auto_vignette={str(auto).lower()}"])
     vo = lite_vo.VisualOdometry(opened.camera, cfg)
-    poses, vigs = [], []
+    poses, vigs, events = [], [], {}
     try:
         for fr in opened:
             r = vo.process(fr.image, fr.timestamp)
             poses.append(None if r.T_world_cam is None else r.T_world_cam.copy())
             vigs.append(vo._vig_version)
+            events.setdefault(r.event, r.index)
     finally:
         vo.close()
-    return vo, poses, vigs
+    return vo, poses, vigs, events
 
 
 def test_a_vignetted_camera_is_corrected_during_the_run_and_a_clean_one_is_left_alone(synth_90, tmp_path):
     seq = tmp_path / "vig"
     _vignetted_copy(synth_90, seq)                   # 50 % at the corners
-    vo, poses, vigs = _run(seq, True)
+    vo, poses, vigs, events = _run(seq, True)
     est = vo.vignette_estimate
     assert est is not None and est.version >= 1         # adopted while the run went on ...
     first = vigs.index(1)
-    assert 0 < first < len(vigs) - 5                    # ... from a frame in the middle of the run on
+    assert first == events["bootstrap"]                 # ... from the start-up's two-view map on (its replayed maps)
+    assert vo.vignette_summary()["from_frames"][0] == first
     assert all(v >= 1 for v in vigs[first:])
     assert abs(est.corner - 0.5) < 0.1                  # 1.0 without the estimate
     assert all(p is not None for p in poses[first:])    # the switch loses no frame
     # the centre stays as it was, the corners are brightened by the inverse
     assert est.vignette[120, 160] > 0.97 and est.vignette[0, 0] < 0.6
     # the clean room: the estimate finds no vignette worth correcting, and the run is the same as with it off
-    vo_on, poses_on, vigs_on = _run(synth_90, True)
-    _, poses_off, _ = _run(synth_90, False)
+    vo_on, poses_on, vigs_on, _ = _run(synth_90, True)
+    _, poses_off, _, _ = _run(synth_90, False)
     assert set(vigs_on) == {0}
     assert vo_on.vignette_estimate.done and "no vignetting" in vo_on.vignette_estimate.reason
     for a, b in zip(poses_on, poses_off):
@@ -96,3 +98,30 @@ def test_the_keyframe_store_re_expresses_its_images():
     assert kf.image.dtype == np.uint8 and not kf.image.flags.writeable
     assert np.all(kf.image[:, :32] == 255) and np.all(kf.image[:, 32:] == 100)     # clipped at white
     np.testing.assert_allclose(np.nan_to_num(kf.idepth), idepth)
+
+
+def test_run_reports_the_vignette_it_corrected_and_estimate_vignette_turns_it_off(synth_90, tmp_path, capsys):
+    import json
+
+    from lite_vo.cli.main import main
+    seq = tmp_path / "vig"
+    _vignetted_copy(synth_90, seq)
+    out = tmp_path / "out"
+    assert main(["run", str(seq), "--out", str(out), "--quiet", "--mode", "sync", "--set", "system.auto_vignette=true"]) == 0
+    said = capsys.readouterr().out
+    vr = json.loads((out / "run.json").read_text())["vignette_during_run"]
+    assert vr["corrections"] >= 1 and abs(vr["corner"] - 0.5) < 0.1 and vr["from_frames"] == sorted(vr["from_frames"])
+    assert f"vignette during the run: {100 * vr['corner']:.1f} % in the corners, corrected from frame {vr['from_frames'][0]} on" in said
+    timing = json.loads((out / "timing.json").read_text())
+    assert timing["stages"]["vignette"]["count"] >= 1
+    # a calibration run fits the images as they come: the correction during the run is off for it
+    cal = tmp_path / "cal"
+    assert main(["run", str(seq), "--out", str(cal), "--quiet", "--mode", "sync", "--estimate-vignette",
+                 "--set", "system.auto_vignette=true"]) == 0
+    capsys.readouterr()
+    assert "vignette_during_run" not in json.loads((cal / "run.json").read_text())
+    assert abs(json.loads((cal / "vignette.json").read_text())["corner"] - 0.5) < 0.1
+    # off (the default): not in run.json
+    off = tmp_path / "off"
+    assert main(["run", str(seq), "--out", str(off), "--quiet", "--mode", "sync", "--max-frames", "10"]) == 0
+    assert "vignette_during_run" not in json.loads((off / "run.json").read_text())

@@ -94,6 +94,11 @@ def run(args) -> int:
     if acc:
         msg += (f"\n  depth: density {100 * acc['density']:.1f}%, median rel. error "
                 f"{100 * acc['median_abs_rel_error']:.2f}%, within 10% {100 * acc['within_10pct']:.1f}%")
+    vr = res.info.get("vignette_during_run")
+    if vr is not None:
+        msg += (f"\n  vignette during the run: {100 * vr['corner']:.1f} % in the corners, corrected from frame "
+                f"{vr['from_frames'][0]} on ({vr['corrections']} correction(s); {vr['ended']})" if vr["corrections"]
+                else f"\n  vignette during the run: no correction ({vr['ended']})")
     if args.estimate_vignette:
         vj = out / "vignette.json"
         v = json.loads(vj.read_text()) if vj.exists() else {"written": False, "reason": "the run ended before the fit"}
