@@ -607,6 +607,8 @@ class VisualOdometry:
             self._vig_inv[version] = inv
             self._vig_version = version
             self.keyframes.rescale_images(self._vig_ratio(old, version))
+            if self._relocalizer is not None:
+                self._relocalizer.forget(())       # its cached references were made from the old images
             self._vig_from.append(self._index if first is None else first)
         log.info("frame %d on: images corrected with the vignette estimated during the run (correction %d)",
                  self._index if first is None else first, version)

@@ -261,6 +261,10 @@ ONLINE_POINTS_PER_PAIR = 2000
 ONLINE_MIN_CORNER_DROP = 0.07
 #: a later round whose residual correction moves the corners by less than this ends the estimate
 ONLINE_CONVERGED = 0.02
+#: a later round that would change the corners by more than this factor is not a refinement but a disagreement
+#: (seen in realtime mode, where the mapping thread skips frames: 51 -> 33 % on a 50 % vignette): the
+#: estimate ends with the corrections it has
+ONLINE_MAX_REFINE = (0.7, 1.43)
 #: at most this many corrections are applied (each round fits what the previous ones left)
 ONLINE_MAX_ROUNDS = 2
 #: a fit uses at most the latest this many pairs
@@ -344,6 +348,10 @@ class OnlineVignette:
             return None
         if self.version > 0 and abs(fit.corner - 1.0) < ONLINE_CONVERGED:
             self._finish(f"converged (what was left: {100 * fit.corner:.1f} % at the corners)")
+            return None
+        if self.version > 0 and not ONLINE_MAX_REFINE[0] <= fit.corner <= ONLINE_MAX_REFINE[1]:
+            self._finish(f"kept the estimate: a later round would move the corners to {100 * fit.corner:.1f} % of it "
+                         f"(more than a refinement)")
             return None
         v = self.vignette * vignette_of(fit.k, self._r2)
         v = np.clip(v / v.max(), 1e-3, None)
