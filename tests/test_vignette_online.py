@@ -125,3 +125,46 @@ def test_run_reports_the_vignette_it_corrected_and_estimate_vignette_turns_it_of
     off = tmp_path / "off"
     assert main(["run", str(seq), "--out", str(off), "--quiet", "--mode", "sync", "--max-frames", "10"]) == 0
     assert "vignette_during_run" not in json.loads((off / "run.json").read_text())
+
+
+def _feed(est, monkeypatch, k_true, n_maps, version, seed):
+    """Offer ``n_maps`` stand-in maps whose pairs show the vignette ``k_true`` (as test_vignette's fits see it)."""
+    from test_vignette import _pairs
+    import lite_vo.vignette_fit as VF
+    pool = iter(_pairs(np.array(k_true), n_pairs=3 * n_maps, n=1500, seed=seed))
+    monkeypatch.setattr(VF, "correspondences", lambda old, new, max_points: next(pool))
+    return [est.offer(object(), version) for _ in range(n_maps)]
+
+
+@pytest.mark.parametrize("second, rounds, ended", [
+    ((-0.1, 0.0, 0.0), 2, "corrections applied"),           # what the first left: a refinement, applied
+    ((-0.005, 0.0, 0.0), 1, "converged"),                   # nothing left worth a change
+    ((-0.6, 0.0, 0.0), 1, "kept the estimate"),              # 40 % more fall-off: a disagreement, not applied
+])
+def test_the_online_estimate_refines_converges_or_keeps_its_first_correction(monkeypatch, second, rounds, ended):
+    from test_vignette import MAP_CAM
+
+    from lite_vo.vignette_fit import OnlineVignette
+    est = OnlineVignette(MAP_CAM)
+    out = _feed(est, monkeypatch, (-0.5, 0.0, 0.0), 4, 0, seed=1)     # 0 + 1 + 2 + 3 pairs: the fit at the fourth map
+    assert out[:3] == [None, None, None] and out[3] is not None and est.version == 1
+    assert abs(est.corner - 0.5) < 0.02
+    np.testing.assert_allclose(out[3], 1.0 / est.vignette.astype(np.float32), rtol=1e-6)
+    assert est.offer(object(), 0) is None and est._previous == []      # a map made before the switch: ignored
+    first = est.corner
+    out = _feed(est, monkeypatch, second, 4, 1, seed=2)
+    assert est.done and ended in est.reason and est.version == rounds
+    if rounds == 2:
+        assert est.corner == pytest.approx(first * 0.9, abs=0.02)       # the product of both rounds
+    else:
+        assert est.corner == first and all(o is None for o in out)
+
+
+def test_the_online_estimate_ends_without_a_change_on_a_lens_without_vignetting(monkeypatch):
+    from test_vignette import MAP_CAM
+
+    from lite_vo.vignette_fit import OnlineVignette
+    est = OnlineVignette(MAP_CAM)
+    out = _feed(est, monkeypatch, (0.0, 0.0, 0.0), 4, 0, seed=3)
+    assert all(o is None for o in out) and est.done and est.version == 0
+    assert "no vignetting to correct" in est.reason and est.corner == 1.0
