@@ -236,6 +236,12 @@ def _aligned_brightness(image0: np.ndarray, image1: np.ndarray, saturation: floa
     return patch_affine(image0, image1, grid, grid, saturation)
 
 
+# a random map's first published maps are not offered to the vignette estimate (system.auto_vignette)
+# unless a two-view start-up rebuilds it: with given poses the depths need about a second to converge
+# (ICL, `--poses gt`: 24.5 % in the corners from the first six pairs, against the true 50 %)
+VIGNETTE_YOUNG_MAPS = 8
+
+
 # the back-fill's brightness, measured from frame to frame on a mostly clipped image, drifts by a few
 # per cent a frame: a tracked estimate this close to it is kept, a collapsed one (gain 0.1-0.8) is not
 BACKFILL_GAIN_TOL = 0.3
@@ -322,6 +328,7 @@ class VisualOdometry:
         self._vig_version = 0
         self._vig_pending: tuple | None = None
         self._vig_from: list[int] = []        # the first frame of each adopted correction
+        self._vig_young = 0                   # published maps still too young to offer (a random start's first ones)
         self._monitor = PhotometricMonitor(config.system.blur_window, config.tracking.noise_smoothing)
         self._recent_affine: dict[int, tuple] = {}   # frame index -> brightness, for the bootstrap replay
         self._index = 0
@@ -562,7 +569,10 @@ class VisualOdometry:
             self._published.append(ref.map)
         self._offer_keyframe(ref.map, frame)
         if self._vignette is not None and not self._vignette.done and self._verifier is None:
-            self._offer_to_vignette([ref.map], ref.vig)
+            if self._vig_young > 0:
+                self._vig_young -= 1
+            else:
+                self._offer_to_vignette([ref.map], ref.vig)
 
     # ------------------------------------------------------------------ the vignette estimated during the run
     def vignette_summary(self) -> dict | None:
@@ -697,6 +707,9 @@ class VisualOdometry:
         mf = MapFrame(frame.index, frame.timestamp, frame.image, T_world_cam, 0.0, frame.affine, frame.noise_sigma)
         mapper = self._new_mapper()
         mapper.image_version = frame.vig
+        # a random map's first maps are no vignette evidence (their depths are still the random guesses); a
+        # monocular start-up's two-view map replaces them anyway (and sets this back)
+        self._vig_young = 0 if use_depth else VIGNETTE_YOUNG_MAPS + 1
         if self._initialized and not use_depth and self.pose_source == "estimate":
             self._scale_id += 1             # a new monocular map: a new scale
         if use_depth:
@@ -999,6 +1012,7 @@ class VisualOdometry:
             return maps
 
         replayed = replayed_map(None)
+        self._vig_young = 0
         if replayed:        # the replayed maps give the vignette estimate its first pairs right away ...
             self._restart_vignette_pairs()
             self._offer_to_vignette(replayed, frame.vig)
