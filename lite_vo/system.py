@@ -328,6 +328,7 @@ class VisualOdometry:
         self._vig_version = 0
         self._vig_pending: tuple | None = None
         self._vig_from: list[int] = []        # the first frame of each adopted correction
+        self._vig_corner = 1.0                # the adopted correction's darkest corner
         self._vig_young = 0                   # published maps still too young to offer (a random start's first ones)
         self._monitor = PhotometricMonitor(config.system.blur_window, config.tracking.noise_smoothing)
         self._recent_affine: dict[int, tuple] = {}   # frame index -> brightness, for the bootstrap replay
@@ -581,7 +582,7 @@ class VisualOdometry:
         if v is None:
             return None
         return {"corrections": len(self._vig_from), "from_frames": list(self._vig_from),
-                "corner": v.corner if self._vig_from else 1.0, "ended": v.reason if v.done else "still estimating"}
+                "corner": self._vig_corner, "ended": v.reason if v.done else "still estimating"}
 
     def _offer_to_vignette(self, maps: list, vig: int) -> None:
         t = time.perf_counter()
@@ -602,8 +603,7 @@ class VisualOdometry:
         if old == new:
             return None
         a, b = self._vig_inv[old], self._vig_inv[new]
-        one = np.ones(self.map_intrinsics.height * self.map_intrinsics.width, np.float32).reshape(
-            self.map_intrinsics.height, self.map_intrinsics.width)
+        one = np.ones((self.map_intrinsics.height, self.map_intrinsics.width), np.float32)
         return (one if b is None else b) / (one if a is None else a)
 
     def _adopt_vignette(self, first: int | None = None) -> None:
@@ -620,6 +620,8 @@ class VisualOdometry:
             if self._relocalizer is not None:
                 self._relocalizer.forget(())       # its cached references were made from the old images
             self._vig_from.append(self._index if first is None else first)
+            self._vig_corner = self._vignette.corner
+        self._prev_tracked = None     # the exposure-step check compares patch means of one correction only
         log.info("frame %d on: images corrected with the vignette estimated during the run (correction %d)",
                  self._index if first is None else first, version)
 
