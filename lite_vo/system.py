@@ -598,10 +598,8 @@ class VisualOdometry:
         applied so far, ``vignette``: the newest at mapping resolution, ``done`` / ``reason``), or None when off."""
         return self._vignette
 
-    def _vig_ratio(self, old: int, new: int) -> np.ndarray | None:
-        """The image in correction ``new`` over the same image in correction ``old`` (None: the same)."""
-        if old == new:
-            return None
+    def _vig_ratio(self, old: int, new: int) -> np.ndarray:
+        """The image in correction ``new`` over the same image in correction ``old``."""
         a, b = self._vig_inv[old], self._vig_inv[new]
         one = np.ones((self.map_intrinsics.height, self.map_intrinsics.width), np.float32)
         return (one if b is None else b) / (one if a is None else a)
@@ -999,9 +997,9 @@ class VisualOdometry:
         replay = [f for k, f in enumerate(posed) if (len(posed) - 1 - k) % every == 0]
         estimating = self._vignette is not None and not self._vignette.done
 
-        def replayed_map(ratio):
-            """The depth filter replayed over the start-up's frames (images times ``ratio``, if any), and
-            its maps when the vignette is being estimated."""
+        def replayed_map(mapper, ratio):
+            """The depth filter replayed into ``mapper`` over the start-up's frames (images times ``ratio``,
+            if any), and its maps when the vignette is being estimated."""
             mapper.initialize_from_depth(MapFrame(idx0, ts0, img0 if ratio is None else img0 * ratio, boot_world, 0.0,
                                                   aff0), np.zeros_like(img0))
             maps = []
@@ -1013,7 +1011,7 @@ class VisualOdometry:
                     maps.append(PublishedMap(idx, ts, T, self.map_intrinsics, img, *mapper.current()))
             return maps
 
-        replayed = replayed_map(None)
+        replayed = replayed_map(mapper, None)
         self._vig_young = 0
         if replayed:        # the replayed maps give the vignette estimate its first pairs right away ...
             self._restart_vignette_pairs()
@@ -1026,7 +1024,7 @@ class VisualOdometry:
                 ratio = self._vig_ratio(old, self._vig_version)
                 mapper = self._new_mapper()
                 mapper.image_version = self._vig_version
-                replayed_map(ratio)
+                replayed_map(mapper, ratio)
                 frame.image = np.multiply(frame.image, ratio, dtype=np.float32)
                 frame.pyramid = image_pyramid(frame.image, self.config.resolution.pyramid_levels)
                 frame.vig = self._vig_version
