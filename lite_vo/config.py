@@ -79,9 +79,10 @@ class SystemConfig:
                                       "a depth start waits for this one too (0 = off)", 0.0, 1.0)
     start_max_wait_s: float = param(2.0, "longest wait of start_max_clipped / start_min_textured (then the start-up "
                                     "begins anyway)", 0.0, 600.0)
-    auto_vignette: bool = param(False, "estimate the camera's vignetting (darker corners) from the run's own maps once the "
-                                "start-up is resolved, and correct the following frames with it (not done when a "
-                                "photometric calibration with a vignette is given)")
+    auto_vignette: bool = param(True, "estimate the camera's vignetting (darker corners) from the run's own maps once the "
+                                "start-up is resolved, and correct the following frames with it when the corners are "
+                                "more than 15 % darker than the centre (not done when a photometric calibration with a "
+                                "vignette is given; false: never)")
     verify_init: bool = param(True, "check a random initialisation against two-view geometry; re-initialise from two views when they disagree")
     verify_features: int = param(300, "corners followed by Lucas-Kanade for the check", 20, 5000)
     verify_min_parallax_px: float = param(25.0, "median corner displacement (px at 320 width) before the check", 1.0, 500.0)

@@ -7,7 +7,6 @@ No argparse here; the CLI module parses and calls :func:`run_sequence`. Imports 
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,11 +57,6 @@ def run_sequence(sequence, config: VOConfig, out_dir: Path | None = None, *, for
     if plot:
         from .plots import require_matplotlib
         require_matplotlib()                  # before the run, not after it
-    if estimate_vignette and config.system.auto_vignette:
-        # the estimate is fitted to maps of images as they come: a correction made during the run would mix in
-        log.warning("--estimate-vignette: system.auto_vignette is turned off for this run (the estimate is made from "
-                    "the images as they come)")
-        config = dataclasses.replace(config, system=dataclasses.replace(config.system, auto_vignette=False))
     session = Session(sequence, config, depth_source=depth_source, pose_source=pose_source,
                       start_frame=start_frame, max_frames=max_frames, max_bad_frames=max_bad_frames,
                       profile_name=profile_name, calib=calib, photometric=photometric)

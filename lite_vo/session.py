@@ -19,6 +19,7 @@ none of them needs a lock, because none is ever called from the mapping thread.
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import gc
 import itertools
 import logging
@@ -231,6 +232,11 @@ class Session:
                 warmup(CORE_KERNEL_MODULES, runtime=True)   # what a run uses: each loaded kernel costs memory
         warmup_s = time.perf_counter() - t_warm
         seq, cfg = self.sequence, self.config
+        if cfg.system.auto_vignette and any(getattr(s, "wants_raw_images", False) for s in self.sinks):
+            # a sink fits the camera's vignetting to the images as they come (VignetteSink): a correction made
+            # during the run would mix in
+            log.info("system.auto_vignette is off for this run: a sink estimates the vignette from the images as they come")
+            cfg = dataclasses.replace(cfg, system=dataclasses.replace(cfg.system, auto_vignette=False))
         vo = VisualOdometry(seq.camera, cfg, depth_source=self.depth_source,
                             pose_source="given" if self.pose_source == "gt" else "estimate",
                             photometric=self.photometric)

@@ -582,7 +582,7 @@ class VisualOdometry:
         if v is None:
             return None
         return {"corrections": len(self._vig_from), "from_frames": list(self._vig_from),
-                "corner": self._vig_corner, "ended": v.reason if v.done else "still estimating"}
+                "corner": self._vig_corner, "ended": v.reason if v.done else "still estimating when the run ended"}
 
     def _offer_to_vignette(self, maps: list, vig: int) -> None:
         t = time.perf_counter()

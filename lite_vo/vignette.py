@@ -71,6 +71,9 @@ class VignetteSink(OutputSink):
     vignette, the fit is what was left and the written vignette is the product of both; its inverse
     response is written beside it (``pcalib.txt``), so the folder is the whole calibration."""
 
+    #: it fits the images as they come: a Session with this sink turns ``system.auto_vignette`` off
+    wants_raw_images = True
+
     def __init__(self, folder, camera, given=None) -> None:
         self.folder = Path(folder)
         self.camera = camera

@@ -60,8 +60,8 @@ def test_a_vignetted_camera_is_corrected_during_the_run_and_a_clean_one_is_left_
     assert vo_on.vignette_estimate.done and "no vignetting" in vo_on.vignette_estimate.reason
     for a, b in zip(poses_on, poses_off):
         assert (a is None and b is None) or np.array_equal(a, b)
-    # off by default
-    assert lite_vo.load_profile("phone").system.auto_vignette is False
+    # on by default
+    assert lite_vo.load_profile("phone").system.auto_vignette is True
 
 
 def test_the_mapper_re_expresses_its_images_in_a_new_correction():
@@ -121,10 +121,15 @@ def test_run_reports_the_vignette_it_corrected_and_estimate_vignette_turns_it_of
     capsys.readouterr()
     assert "vignette_during_run" not in json.loads((cal / "run.json").read_text())
     assert abs(json.loads((cal / "vignette.json").read_text())["corner"] - 0.5) < 0.1
-    # off (the default): not in run.json
+    # on by default; turned off: not in run.json
     off = tmp_path / "off"
-    assert main(["run", str(seq), "--out", str(off), "--quiet", "--mode", "sync", "--max-frames", "10"]) == 0
+    assert main(["run", str(seq), "--out", str(off), "--quiet", "--mode", "sync", "--max-frames", "10",
+                 "--set", "system.auto_vignette=false"]) == 0
     assert "vignette_during_run" not in json.loads((off / "run.json").read_text())
+    default = tmp_path / "default"
+    assert main(["run", str(seq), "--out", str(default), "--quiet", "--mode", "sync"]) == 0
+    capsys.readouterr()
+    assert json.loads((default / "run.json").read_text())["vignette_during_run"] == vr
 
 
 def _feed(est, monkeypatch, k_true, n_maps, version, seed):
@@ -168,6 +173,23 @@ def test_the_online_estimate_ends_without_a_change_on_a_lens_without_vignetting(
     out = _feed(est, monkeypatch, (0.0, 0.0, 0.0), 4, 0, seed=3)
     assert all(o is None for o in out) and est.done and est.version == 0
     assert "no vignetting to correct" in est.reason and est.corner == 1.0
+
+
+@pytest.mark.parametrize("k1, corrected", [(-0.1, False), (-0.25, True)])
+def test_the_online_estimate_leaves_a_mild_fall_off_alone(monkeypatch, k1, corrected):
+    """Corners 90 % as bright as the centre (KITTI's camera: 92.5 % at first) are left as they are; 75 % are
+    corrected (ONLINE_MIN_CORNER_DROP, 15 %)."""
+    from test_vignette import MAP_CAM
+
+    from lite_vo.vignette_fit import ONLINE_MIN_CORNER_DROP, OnlineVignette
+    assert ONLINE_MIN_CORNER_DROP == pytest.approx(0.15)
+    est = OnlineVignette(MAP_CAM)
+    out = _feed(est, monkeypatch, (k1, 0.0, 0.0), 4, 0, seed=4)
+    if corrected:
+        assert out[3] is not None and est.version == 1 and est.corner == pytest.approx(1.0 + k1, abs=0.02)
+    else:
+        assert all(o is None for o in out) and est.done and est.version == 0
+        assert "no vignetting to correct (corners 9" in est.reason and est.corner == 1.0
 
 
 def test_with_given_poses_a_random_maps_first_maps_are_not_used(synth_90, tmp_path, capsys):
