@@ -90,6 +90,12 @@ def test_augment_writes_the_true_vignette_for_photometric_correction(tmp_path):
     assert out[0, 0] < 0.6 * grey[0, 0] + 1                       # the corner was darkened to about half
     inner = np.s_[5:-5, 5:-5]
     assert np.max(np.abs(corrected - grey)[inner]) <= 1.01          # 0.5 grey level of rounding / 0.5 at the corners
+    # a milder vignette: --vignette C puts the corners at C
+    assert aug.main([str(tmp_path / "src"), str(tmp_path / "mild"), "--vignette", "0.8", "--blur"]) == 0
+    mild = load_photometric(tmp_path / "mild" / "true_vignette").vignette
+    assert mild[0, 0] == pytest.approx(0.8, abs=1e-4) and mild.max() == pytest.approx(1.0, abs=1e-4)
+    with pytest.raises(SystemExit):
+        aug.main([str(tmp_path / "src"), str(tmp_path / "bad"), "--vignette", "1.5"])
 
 
 def test_augment_dark_start_ramps_up_from_black_and_cover_blacks_frames_out(tmp_path):

@@ -2,13 +2,13 @@
 """Add what a phone camera adds to a TUM-layout sequence: auto-exposure, vignetting, motion blur,
 noise and JPEG, seeded, so every number measured on the result is reproducible.
 
-    python tools/augment.py SRC DST [--exposure] [--vignette] [--blur] [--noise [SIGMA]] [--jpeg [Q]] [--seed S]
+    python tools/augment.py SRC DST [--exposure] [--vignette [C]] [--blur] [--noise [SIGMA]] [--jpeg [Q]] [--seed S]
 
 SRC: a folder with ``rgb.txt`` and the images it lists (TUM layout). Everything else (ground truth,
 depth, calib.txt, accelerometer, ...) is copied unchanged; the images are written grey (8 bit) in
 the order the camera would apply the effects:
 
-* ``--vignette``: radial fall-off ``1 - 0.5 (r / r_corner)^2`` (50 % at the corners); the true
+* ``--vignette [C]``: radial fall-off ``1 - (1 - C) (r / r_corner)^2`` (C = 0.5 by default: 50 % at the corners); the true
   vignette is written to ``DST/true_vignette/vignette.png`` (16 bit, DSO's format), so
   ``lite-vo run DST --photometric DST/true_vignette`` corrects with it;
 * ``--blur``: horizontal motion blur, a box of 3..7 px (uniform per frame);
@@ -46,11 +46,11 @@ def exposure_curve(times: np.ndarray, rng: np.random.Generator, gain_range=(0.55
     return gain, offset
 
 
-def vignette_map(h: int, w: int) -> np.ndarray:
-    """1 at the centre, 0.5 at the corners, quadratic in the radius."""
+def vignette_map(h: int, w: int, corner: float = 0.5) -> np.ndarray:
+    """1 at the centre, ``corner`` at the corners, quadratic in the radius."""
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     r2 = (xs - (w - 1) / 2) ** 2 + (ys - (h - 1) / 2) ** 2
-    return 1.0 - 0.5 * r2 / r2.max()
+    return 1.0 - (1.0 - corner) * r2 / r2.max()
 
 
 def motion_blur(img: np.ndarray, length: int) -> np.ndarray:
@@ -112,7 +112,8 @@ def main(argv=None) -> int:
                     help="--exposure: range of the gain (default 0.55 1.45)")
     ap.add_argument("--offset", type=float, default=10.0, metavar="B",
                     help="--exposure: amplitude of the offset in grey levels (default 10)")
-    ap.add_argument("--vignette", action="store_true", help="vignetting, 50%% at the corners")
+    ap.add_argument("--vignette", nargs="?", type=float, const=0.5, default=None, metavar="C",
+                    help="vignetting: the corners at C times the centre's brightness (default 0.5)")
     ap.add_argument("--blur", action="store_true", help="horizontal motion blur of 3..7 px")
     ap.add_argument("--noise", nargs="?", type=float, const=3.0, default=0.0, metavar="SIGMA",
                     help="Gaussian noise std in grey levels (default 3)")
@@ -126,6 +127,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--force", action="store_true", help="replace DST")
     args = ap.parse_args(argv)
+    if args.vignette is not None and not 0.0 < args.vignette <= 1.0:
+        ap.error(f"--vignette {args.vignette}: the corners' brightness must be in (0, 1]")
 
     import cv2
 
@@ -162,8 +165,8 @@ def main(argv=None) -> int:
     out_lines = ["# timestamp filename (augmented: " + " ".join(a for a in sys.argv[1:] if a.startswith("--")) + ")"]
     for k, (ts_text, _, name) in enumerate(rows):
         img = read_grey(src / name)
-        if args.vignette and (vig is None or vig.shape != img.shape):
-            vig = vignette_map(*img.shape)
+        if args.vignette is not None and (vig is None or vig.shape != img.shape):
+            vig = vignette_map(*img.shape, corner=args.vignette)
         out = augment_image(img, vig, int(blur[k]), float(gain[k]), float(offset[k]), args.noise, rng)
         rel = Path(name)
         (dst / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -185,7 +188,8 @@ def main(argv=None) -> int:
     (dst / "rgb.txt").write_text("\n".join(out_lines) + "\n")
     (dst / "augment.json").write_text(json.dumps({
         "source": str(src), "seed": args.seed, "exposure": args.exposure,
-        "gain_range": list(args.gain_range), "offset_amplitude": args.offset, "vignette": args.vignette,
+        "gain_range": list(args.gain_range), "offset_amplitude": args.offset, "vignette": args.vignette is not None,
+        "vignette_corner": args.vignette,
         "blur": args.blur, "dark_start": args.dark_start, "cover": args.cover, "step": args.step, "noise_sigma": args.noise, "jpeg_quality": args.jpeg, "frames": params}, indent=1))
     print(f"augment: {len(rows)} frames -> {dst}")
     return 0
