@@ -316,13 +316,18 @@ class VisualOdometry:
         self._velocity = np.eye(4)
         self._lost_count = 0
         self._photometric = photometric
-        # the vignette estimated during the run (system.auto_vignette): fed the published maps (under
-        # _vig_lock), it hands a new correction to _vig_pending; the tracking thread adopts it between
-        # start-ups (_vig_version; _vig_inv: version -> inverse vignette at mapping resolution, None = 1)
+        # the vignette estimated during the run (system.auto_vignette): fed the published maps, it hands a
+        # new correction to _vig_pending (under _vig_lock); the tracking thread adopts it between start-ups
+        # (_vig_version; _vig_inv: version -> inverse vignette at mapping resolution, None = 1). In realtime
+        # mode the estimator works in a thread of its own (_vig_worker, every call in order): a fit takes
+        # 10-120 ms, which the tracking thread would pay in dropped frames
         self._vignette = None
+        self._vig_worker: ThreadPoolExecutor | None = None
         if config.system.auto_vignette and (photometric is None or photometric.vignette is None):
             from .vignette_fit import OnlineVignette
             self._vignette = OnlineVignette(self.map_intrinsics)
+            if config.system.mode == "realtime":
+                self._vig_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lite_vo-vignette")
         self._vig_lock = threading.Lock()
         self._vig_inv: dict[int, np.ndarray | None] = {0: None}
         self._vig_version = 0
@@ -474,6 +479,9 @@ class VisualOdometry:
                 self._cond.notify_all()
             self._thread.join()
             self._thread = None
+        if self._vig_worker is not None:
+            self._vig_worker.shutdown(wait=True)
+            self._vig_worker = None
         try:
             self._drain_depth_jobs(wait=True)
         finally:
@@ -584,12 +592,29 @@ class VisualOdometry:
         return {"corrections": len(self._vig_from), "from_frames": list(self._vig_from),
                 "corner": self._vig_corner, "ended": v.reason if v.done else "still estimating when the run ended"}
 
+    def _vignette_call(self, fn, *args) -> None:
+        """Run ``fn(*args)`` (a call on the vignette estimator) here, or in realtime mode queued on its thread."""
+        if self._vig_worker is None:
+            fn(*args)
+        else:
+            self._vig_worker.submit(fn, *args)
+
     def _offer_to_vignette(self, maps: list, vig: int) -> None:
+        self._vignette_call(self._offer_to_vignette_now, maps, vig)
+
+    def _offer_to_vignette_now(self, maps: list, vig: int) -> None:
         t = time.perf_counter()
-        with self._vig_lock:
-            inv = self._vignette.offer_maps(maps, vig)
-            if inv is not None:
-                self._vig_pending = (self._vignette.version, inv)
+        est = self._vignette
+        try:
+            inv = est.offer_maps(maps, vig)
+        except Exception as err:          # the run goes on uncorrected rather than failing (realtime: its own thread)
+            log.warning("vignette estimate during the run failed (%s: %s); the images stay as they are",
+                        type(err).__name__, err)
+            est.stop(f"failed: {type(err).__name__}: {err}")
+            inv = None
+        if inv is not None:
+            with self._vig_lock:
+                self._vig_pending = (est.version, inv, est.corner)
         self.timers.add("vignette", (time.perf_counter() - t) * 1e3)
 
     @property
@@ -609,7 +634,7 @@ class VisualOdometry:
         estimate; the keyframes' images are re-expressed in it (the tracking reference and the mapper's
         images follow when they next meet a frame of the new correction)."""
         with self._vig_lock:
-            version, inv = self._vig_pending
+            version, inv, corner = self._vig_pending
             self._vig_pending = None
             old = self._vig_version
             self._vig_inv[version] = inv
@@ -618,7 +643,7 @@ class VisualOdometry:
             if self._relocalizer is not None:
                 self._relocalizer.forget(())       # its cached references were made from the old images
             self._vig_from.append(self._index if first is None else first)
-            self._vig_corner = self._vignette.corner
+            self._vig_corner = corner
         self._prev_tracked = None     # the exposure-step check compares patch means of one correction only
         log.info("frame %d on: images corrected with the vignette estimated during the run (correction %d)",
                  self._index if first is None else first, version)
@@ -694,8 +719,7 @@ class VisualOdometry:
 
     def _restart_vignette_pairs(self) -> None:
         if self._vignette is not None:
-            with self._vig_lock:
-                self._vignette.restart()
+            self._vignette_call(self._vignette.restart)
 
     def _initialize(self, frame: _Frame, T_world_cam: np.ndarray, event: str) -> FrameResult:
         """(Re-)initialise the map in ``frame`` (depth image or random depth) with a new mapper."""

@@ -375,6 +375,10 @@ class OnlineVignette:
         ones before (the pairs collected so far stay: each is consistent in itself)."""
         self._previous = []
 
+    def stop(self, reason: str) -> None:
+        """End the estimate where it is (the corrections made so far stay), with ``reason``."""
+        self._finish(reason)
+
     def _finish(self, reason: str) -> None:
         self.done = True
         self.reason = reason

@@ -64,6 +64,41 @@ def test_a_vignetted_camera_is_corrected_during_the_run_and_a_clean_one_is_left_
     assert lite_vo.load_profile("phone").system.auto_vignette is True
 
 
+def test_in_realtime_mode_the_estimate_runs_off_the_tracking_thread(synth_90, tmp_path, monkeypatch):
+    """A fit takes 10-120 ms: in realtime mode it runs in the estimator's own thread (the tracking thread
+    would drop frames meanwhile), and its correction is still adopted and applied."""
+    import threading
+
+    import lite_vo.vignette_fit as VF
+    seq = tmp_path / "vig"
+    _vignetted_copy(synth_90, seq)
+    threads = []
+    offer = VF.OnlineVignette.offer_maps
+
+    def recording(self, maps, version):
+        threads.append(threading.current_thread().name)
+        return offer(self, maps, version)
+
+    monkeypatch.setattr(VF.OnlineVignette, "offer_maps", recording)
+    opened = lite_vo.open_sequence(seq)
+    cfg = lite_vo.load_profile("phone", ['system.mode="realtime"'])
+    vo = lite_vo.VisualOdometry(opened.camera, cfg)
+    posed = []
+    try:
+        for fr in opened:
+            posed.append(vo.process(fr.image, fr.timestamp).T_world_cam is not None)
+            # frames come as fast as they are processed here; a camera gives the estimator ~33 ms per frame:
+            # let it finish what it was given before the next frame, so the test does not depend on timing
+            vo._vig_worker.submit(lambda: None).result(timeout=60)
+    finally:
+        vo.close()
+    assert threads and all(t.startswith("lite_vo-vignette") for t in threads)
+    assert vo._vig_worker is None                       # shut down by close()
+    summary = vo.vignette_summary()
+    assert summary["corrections"] >= 1 and abs(summary["corner"] - 0.5) < 0.1
+    assert all(posed[summary["from_frames"][0]:])
+
+
 def test_the_mapper_re_expresses_its_images_in_a_new_correction():
     cam = PinholeIntrinsics(100.0, 100.0, 31.5, 23.5, 64, 48)
     m = Mapper(MappingConfig(), cam, seed=0)
