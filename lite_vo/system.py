@@ -382,6 +382,9 @@ class VisualOdometry:
                                        min_translation_rel=config.system.keyframe_min_move,
                                        min_rotation_deg=config.system.keyframe_min_turn_deg)
         self._scale_id = 0   # a new id for every map with a new monocular scale
+        # the scale id of self._mapper's maps, set with it under _ref_lock: a map the mapping thread publishes
+        # from the old mapper while a new map (a new scale) is being installed keeps the old id (realtime mode)
+        self._mapper_scale_id = 0
         if config.system.mode == "realtime" and depth_source == "filter":
             self._thread = threading.Thread(target=self._mapping_loop, name="lite_vo-mapping", daemon=True)
             self._thread.start()
@@ -576,7 +579,8 @@ class VisualOdometry:
                 return
             self._reference = ref
             self._published.append(ref.map)
-        self._offer_keyframe(ref.map, frame)
+            scale_id = self._mapper_scale_id
+        self._offer_keyframe(ref.map, frame, scale_id)
         if self._vignette is not None and not self._vignette.done and self._verifier is None:
             if self._vig_young > 0:
                 self._vig_young -= 1
@@ -669,9 +673,9 @@ class VisualOdometry:
         if mapper.image_version != vig:
             mapper.rescale_images(self._vig_ratio(mapper.image_version, vig), vig)
 
-    def _offer_keyframe(self, m: PublishedMap, frame: _Frame) -> None:
-        """Keep the map as a keyframe when the camera moved enough since the last one."""
-        if not self.keyframes.wants(m.T_world_cam, self._scale_id):
+    def _offer_keyframe(self, m: PublishedMap, frame: _Frame, scale_id: int) -> None:
+        """Keep the map (of scale ``scale_id``) as a keyframe when the camera moved enough since the last one."""
+        if not self.keyframes.wants(m.T_world_cam, scale_id):
             return
         color = frame.color
         if callable(color):            # deferred: decoded now, at a reduced size when the rectifier allows
@@ -683,7 +687,7 @@ class VisualOdometry:
             if frame.vig != self._vig_version:
                 image = np.multiply(image, self._vig_ratio(frame.vig, self._vig_version), dtype=np.float32)
             self.keyframes.add(Keyframe.make(m.frame_index, m.timestamp, m.T_world_cam, m.camera, image, m.idepth,
-                                             m.idepth_var, color, self._scale_id))
+                                             m.idepth_var, color, scale_id))
 
     def _build_reference(self, frame: _Frame, idepth, idepth_var, valid) -> _Reference:
         t = time.perf_counter()
@@ -713,6 +717,7 @@ class VisualOdometry:
         self._stop_mapping_work()
         with self._ref_lock:
             self._mapper = mapper
+            self._mapper_scale_id = self._scale_id
         self._tracker.reset_motion_history()
         self._restart_vignette_pairs()
         self._publish(ref, mapper, frame)
@@ -956,6 +961,7 @@ class VisualOdometry:
         self._stop_mapping_work()
         with self._ref_lock:              # installed, not published: the keyframe's map is already stored
             self._mapper = mapper
+            self._mapper_scale_id = self._scale_id      # the keyframe's (only those of this scale are tried)
             self._reference = ref
         self._tracker.reset_motion_history()
         tr = rel.result

@@ -191,6 +191,26 @@ def test_frames_tracked_against_a_replaced_map_are_not_mapped_into_the_new_one(s
         assert vo._current_reference() is not ref_before and vo.counts["mapped"] == mapped_before + 1
 
 
+def test_a_map_published_while_a_new_scale_is_installed_keeps_its_own_scale(synth_small):
+    """Realtime mode: the mapping thread may publish a map of the old mapper after a re-initialisation or a
+    start-up's two-view map took a new scale id but before the new mapper is installed. Its keyframe must keep
+    the old scale (relocalisation only tries keyframes of the current scale: a random map's keyframe taken for
+    one of the two-view map sent a realtime run into relocalising frame after frame)."""
+    seq, frames = _frames(synth_small, 3)
+    cfg = lite_vo.load_profile("phone", ['system.init="depth"'])
+    with VisualOdometry(seq.camera, cfg) as vo:
+        vo.process(frames[0].image, frames[0].timestamp, depth=frames[0].depth)
+        old_scale = vo._scale_id
+        assert {k.scale_id for k in vo.keyframes.snapshot()} == {old_scale}
+        frame = vo._preprocess(frames[1].image, frames[1].timestamp, None)
+        frame.T_world_cam = np.eye(4)
+        frame.mapper = vo._mapper
+        vo._scale_id += 1          # a new map is being made (its mapper not installed yet) ...
+        vo._map_frame(frame)       # ... when the mapping thread publishes the old mapper's map
+        assert vo.counts["mapped"] == 1
+        assert {k.scale_id for k in vo.keyframes.snapshot()} == {old_scale}
+
+
 def test_plain_intrinsics_of_undistorted_input_work_like_the_camera(synth_small):
     seq, frames = _frames(synth_small, 8)
     cfg = lite_vo.load_profile("phone", ['system.init="depth"'])
