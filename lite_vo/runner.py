@@ -7,7 +7,6 @@ No argparse here; the CLI module parses and calls :func:`run_sequence`. Imports 
 """
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,8 +15,6 @@ from .errors import InputError
 from .io import prepare_output_dir
 from .session import Session
 from .sinks import MapSink, ProgressSink, RunInfoSink, TrajectoryExportSink, TrajectorySink
-
-log = logging.getLogger(__name__)
 
 RUN_OUTPUTS = ("trajectory.txt", "timing.json", "run.json", "map.ply", "depth_accuracy.json", "depth_error.png",
                "trajectory_kitti.txt", "times.txt", "trajectory.png", "vignette.png", "vignette.json",
