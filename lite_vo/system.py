@@ -764,7 +764,6 @@ class VisualOdometry:
                                           frame.index, frame.timestamp, self.config.tracking.saturation,
                                           self._corner_rectifier.intrinsics if fine else None, frame.corner_image)
             self._recent_affine[frame.index] = frame.affine
-            self._restart_vignette_pairs()     # the random map is no vignette evidence
         frame.corner_image = None
         if event == "init":
             self._start_pose, self._start_affine = T_world_cam.copy(), frame.affine
