@@ -73,7 +73,11 @@ class SystemConfig:
     start_max_clipped: float = param(0.4, "a monocular start waits for a frame with at most this share of its pixels "
                                      "clipped (auto-exposure still settling), at most start_max_wait_s; the frames "
                                      "before are tracked backwards once the start-up is resolved (1 = off: start on "
-                                     "the first frame)", 0.0, 1.0)
+                                     "the first frame; start_max_clipped_centre's wait too)", 0.0, 1.0)
+    start_max_clipped_centre: float = param(0.55, "... and with at most this share of the pixels of its centre clipped "
+                                            "(nearer the principal point than half its distance to the farthest "
+                                            "corner): a vignetting lens darkens the rest of the frame, so the share "
+                                            "over the whole frame understates a blown-out exposure (1 = off)", 0.0, 1.0)
     start_min_textured: float = param(0.2, "... and for a frame with at least this share of its pixels textured enough for "
                                       "a hypothesis (mapping.min_grad): not black or too dark (a camera still opening); "
                                       "a depth start waits for this one too (0 = off)", 0.0, 1.0)

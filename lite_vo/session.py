@@ -358,7 +358,7 @@ class Session:
 
 _EVENT_TEXT = {"init": "map initialised ({init}) at frame {index}",
                "waiting": "start-up waits: frame {index} is blown out or too dark to start on (system.start_max_clipped, "
-                          "system.start_min_textured)",
+                          "system.start_max_clipped_centre, system.start_min_textured)",
                "bootstrap": "start-up: map rebuilt from two views at frame {index}; earlier poses corrected",
                "reinit": "map re-initialised at frame {index}",
                "lost": "tracking lost at frame {index}",

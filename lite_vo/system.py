@@ -67,6 +67,14 @@ log = logging.getLogger(__name__)
 #: tools/augment.py's auto-exposure: the seeds that start 58-79 % clipped lose accuracy; README "Real cameras");
 #: with the start-up's wait on (system.start_max_clipped) that happens only when the wait ran out
 BLOWN_OUT_START = 0.5
+#: ... or with more than this share of the pixels of its centre clipped (:data:`CENTRE_RADIUS`): a vignetting
+#: lens darkens the rest of the frame, so the share over the whole frame understates a blown-out exposure
+#: (on ICL's auto-exposure frames a whole-frame share of 0.5 goes with 0.65-0.75 in the centre)
+BLOWN_OUT_START_CENTRE = 0.7
+#: the centre whose clipped share system.start_max_clipped_centre bounds: pixels nearer the principal point than
+#: this fraction of its distance to the farthest image corner (where a vignette darkens by a quarter of its corners'
+#: fall-off at most, for a fall-off in r^2)
+CENTRE_RADIUS = 0.5
 
 #: the fields of a row of :attr:`VisualOdometry.depth_accuracy_series`
 DEPTH_ACCURACY_FIELDS = ("frame", "t", "scale", "density", "median_abs_rel_error", "within_5pct", "within_10pct",
@@ -152,6 +160,7 @@ class _Frame:
     sharpness: float = 1.0            # relative to the recent frames (motion blur: < 1)
     clipped: float = 0.0              # share of the pixels at or above mapping.saturation
     textured: float = float("nan")    # share of the pixels with a hypothesis' gradient (measured only before a start)
+    clipped_centre: float = float("nan")  # share of the pixels of the centre (CENTRE_RADIUS) clipped (only before a start)
     affine: tuple = (1.0, 0.0)        # brightness (A, B): I = A * J + B, chained by tracking
     noise_sigma: float = float("nan")  # smoothed image noise estimate (grey levels)
     rectify_depth: Any = None          # native depth -> mapping resolution (the system's rectifier)
@@ -340,6 +349,7 @@ class VisualOdometry:
         self._index = 0
         self._t0: float | None = None
         self._wait_t0: float | None = None   # first frame a monocular start skipped (system.start_max_clipped)
+        self._centre_mask: np.ndarray | None = None   # the image centre of system.start_max_clipped_centre
         # the skipped frames (index, timestamp, tracking levels of the pyramid, sharpness): tracked backwards
         # against the map once the start-up is resolved (_backfill_waited), then dropped
         self._waited: list[tuple] = []
@@ -745,12 +755,14 @@ class VisualOdometry:
             mapper.initialize_from_depth(mf, frame.depth_m)
         else:
             mapper.initialize_random(mf)
-            if frame.clipped > BLOWN_OUT_START and self.pose_source == "estimate":
-                log.warning("the monocular start-up begins on frame %d with %.0f %% of its pixels clipped (auto-exposure "
-                            "still settling?): its corners and first map come from the rest of the image, which costs "
-                            "accuracy; start the run where the image is no longer blown out (--start-frame), or let the "
-                            "start-up wait for it (system.start_max_clipped, system.start_max_wait_s)",
-                            frame.index, 100 * frame.clipped)
+            if self.pose_source == "estimate" and (frame.clipped > BLOWN_OUT_START
+                                                   or self._clipped_centre(frame) > BLOWN_OUT_START_CENTRE):
+                log.warning("the monocular start-up begins on frame %d with %.0f %% of its pixels clipped (%.0f %% of its "
+                            "centre; auto-exposure still settling?): its corners and first map come from the rest of the "
+                            "image, which costs accuracy; start the run where the image is no longer blown out "
+                            "(--start-frame), or let the start-up wait for it (system.start_max_clipped, "
+                            "system.start_max_clipped_centre, system.start_max_wait_s)",
+                            frame.index, 100 * frame.clipped, 100 * self._clipped_centre(frame))
             elif frame.textured < self.config.system.start_min_textured and self.pose_source == "estimate":
                 log.warning("the monocular start-up begins on frame %d with only %.0f %% of its pixels textured enough "
                             "for a map (black or very dark: the camera still opening?) after waiting %.1f s "
@@ -781,9 +793,10 @@ class VisualOdometry:
         self.counts["tracked"] += 1
         if event == "reinit":
             self.counts["reinit"] += 1
-        return FrameResult(frame.index, frame.timestamp, T_world_cam.copy(), False,
-                           {"init": "depth" if use_depth else "random", "clipped": frame.clipped}, mapped=True,
-                           event=event)
+        quality = {"init": "depth" if use_depth else "random", "clipped": frame.clipped}
+        if math.isfinite(frame.clipped_centre):
+            quality["clipped_centre"] = frame.clipped_centre
+        return FrameResult(frame.index, frame.timestamp, T_world_cam.copy(), False, quality, mapped=True, event=event)
 
     def _depth_start(self, frame: _Frame) -> bool:
         """Whether a map started in ``frame`` starts from its depth image (``system.init``; ``auto``: when it has one)."""
@@ -791,12 +804,29 @@ class VisualOdometry:
         return init == "depth" or (init == "auto" and frame.depth_native is not None)
 
     def _unusable_for_a_map(self, frame: _Frame) -> bool:
-        """Whether a map should not start in this frame: too much of it clipped (``system.start_max_clipped``)
-        or too little of it textured (:meth:`_textureless`)."""
+        """Whether a map should not start in this frame: too much of it clipped (``system.start_max_clipped``,
+        or of its centre: ``system.start_max_clipped_centre``) or too little of it textured (:meth:`_textureless`)."""
         sc = self.config.system
-        if sc.start_max_clipped < 1.0 and frame.clipped > sc.start_max_clipped:
-            return True
+        if sc.start_max_clipped < 1.0:           # 1: no wait for clipping at all
+            if frame.clipped > sc.start_max_clipped:
+                return True
+            if sc.start_max_clipped_centre < 1.0 and self._clipped_centre(frame) > sc.start_max_clipped_centre:
+                return True
         return self._textureless(frame)
+
+    def _clipped_centre(self, frame: _Frame) -> float:
+        """The share of the pixels within :data:`CENTRE_RADIUS` of the principal point that are clipped (at or
+        above ``mapping.saturation``; measured once per frame, only before a start)."""
+        if not math.isfinite(frame.clipped_centre):
+            if self._centre_mask is None or self._centre_mask.shape != frame.image.shape:
+                h, w = frame.image.shape
+                cx, cy = self.map_intrinsics.cx, self.map_intrinsics.cy
+                far = max(math.hypot(x - cx, y - cy) for x in (-0.5, w - 0.5) for y in (-0.5, h - 0.5))
+                yy, xx = np.mgrid[:h, :w]
+                self._centre_mask = np.hypot(xx - cx, yy - cy) < CENTRE_RADIUS * far
+            centre = frame.image[self._centre_mask]
+            frame.clipped_centre = float(np.count_nonzero(centre >= self.config.mapping.saturation)) / max(centre.size, 1)
+        return frame.clipped_centre
 
     def _textureless(self, frame: _Frame) -> bool:
         """Whether too little of the frame has the gradient a hypothesis needs (``system.start_min_textured``:
@@ -830,6 +860,8 @@ class VisualOdometry:
             self._t0 = None          # the run's start-up phase (map_every_startup) begins with the first used frame
             self.timers.add("tracking", (time.perf_counter() - t_start) * 1e3)
             quality = {"clipped": frame.clipped}
+            if math.isfinite(frame.clipped_centre):
+                quality["clipped_centre"] = frame.clipped_centre
             if math.isfinite(frame.textured):
                 quality["textured"] = frame.textured
             return FrameResult(frame.index, frame.timestamp, None, True, quality, event="waiting")

@@ -230,6 +230,58 @@ def test_a_monocular_start_can_wait_for_the_exposure_to_settle(caplog):
     assert counts["waited"] == 3 and counts["lost"] == 0
 
 
+def test_a_vignetted_blown_out_start_waits_for_its_centre(caplog):
+    """system.start_max_clipped_centre: a vignetting lens darkens the frame's outer part, so a blown-out exposure
+    clips less than start_max_clipped of the whole frame while its centre is mostly clipped (ICL with a 50 %
+    vignette and auto-exposure, seed 6: 34 % of the frame, 65 % of its centre). The start waits for the centre
+    too; 1 turns that off (the whole-frame share alone decides, as before), and a start that begins on such a
+    frame anyway says so with both shares."""
+    from lite_vo.system import BLOWN_OUT_START, BLOWN_OUT_START_CENTRE, CENTRE_RADIUS
+    room = naive_tracking.Room(seed=1, cell=0.05, depth=1.3, half_width=0.9, floor=0.5, ceiling=-0.6)
+    h, w = INTR.height, INTR.width
+    yy, xx = np.mgrid[:h, :w]
+    rho = np.hypot(xx - INTR.cx, yy - INTR.cy) / np.hypot(INTR.cx + 0.5, INTR.cy + 0.5)
+    centre = rho < CENTRE_RADIUS
+
+    def camera(img, offset):           # a contrasty scene, an exposure offset, a 50 % vignette
+        return np.clip(np.rint((1.0 - 0.5 * rho ** 2) * (2.0 * img - 127.0 + offset)), 0, 255).astype(np.uint8)
+
+    frames = []
+    for k in range(6):
+        T = exp_se3(np.array([0.004 * k, 0.002 * k, 0.0, 0.0, 0.003 * k, 0.0]))
+        img, z = room.render(T, INTR, supersample=2)
+        frames.append(camera(img, 160.0 if k < 3 else 0.0))      # blown out while the exposure settles
+    cfg = load_profile("phone")
+    sat = cfg.mapping.saturation
+    whole = [float(np.mean(img >= sat)) for img in frames]
+    middle = [float(np.mean(img[centre] >= sat)) for img in frames]
+    assert max(whole) <= cfg.system.start_max_clipped            # the whole-frame share alone would not wait
+    assert min(middle[:3]) > cfg.system.start_max_clipped_centre >= max(middle[3:])
+
+    def run(images, *overrides):
+        with VisualOdometry(INTR, load_profile("phone", ["system.init=random", *overrides])) as vo:
+            return [vo.process(img, k / 30.0) for k, img in enumerate(images)], vo.timing()["frames"]
+
+    res, counts = run(frames)
+    assert [r.event for r in res[:4]] == ["waiting", "waiting", "waiting", "init"]
+    assert counts["waited"] == 3 and counts["lost"] == 0
+    for k in range(4):                 # the centre's share is reported for the frames measured before the start
+        assert res[k].quality["clipped_centre"] == pytest.approx(middle[k], abs=0.01)
+    for off in ("system.start_max_clipped_centre=1", "system.start_max_clipped=1"):
+        res, counts = run(frames, off)
+        assert res[0].event == "init" and "waited" not in counts, off
+    # a start on a frame blown out in its centre (the wait ran out) is warned about, with both shares
+    img, _ = room.render(np.eye(4), INTR, supersample=2)
+    worse = camera(img, 175.0)
+    share, share_c = float(np.mean(worse >= sat)), float(np.mean(worse[centre] >= sat))
+    assert share <= BLOWN_OUT_START and share_c > BLOWN_OUT_START_CENTRE
+    with caplog.at_level(logging.WARNING, logger="lite_vo.system"):
+        res, _ = run([worse], "system.start_max_wait_s=0")
+    assert res[0].event == "init"
+    said = [m for m in caplog.messages if "clipped" in m]
+    assert said and f"{100 * share_c:.0f} % of its centre" in said[0] and "start_max_clipped_centre" in said[0]
+
+
 def _given_pose_run(affine: bool):
     """24 frames of the room, poses given (mapping only), random start: 8 frames at the first exposure
     (the map converges), then a strong exposure ramp."""
