@@ -816,7 +816,8 @@ class VisualOdometry:
 
     def _clipped_centre(self, frame: _Frame) -> float:
         """The share of the pixels within :data:`CENTRE_RADIUS` of the principal point that are clipped (at or
-        above ``mapping.saturation``; measured once per frame, only before a start)."""
+        above ``mapping.saturation`` before the vignette estimated during the run corrects them, as
+        ``frame.clipped``); measured once per frame, only where a map may start."""
         if not math.isfinite(frame.clipped_centre):
             if self._centre_mask is None or self._centre_mask.shape != frame.image.shape:
                 h, w = frame.image.shape
@@ -824,8 +825,11 @@ class VisualOdometry:
                 far = max(math.hypot(x - cx, y - cy) for x in (-0.5, w - 0.5) for y in (-0.5, h - 0.5))
                 yy, xx = np.mgrid[:h, :w]
                 self._centre_mask = np.hypot(xx - cx, yy - cy) < CENTRE_RADIUS * far
+            sat = self.config.mapping.saturation
+            inv = self._vig_inv[frame.vig]
             centre = frame.image[self._centre_mask]
-            frame.clipped_centre = float(np.count_nonzero(centre >= self.config.mapping.saturation)) / max(centre.size, 1)
+            clipped = centre >= (sat if inv is None else sat * inv[self._centre_mask])
+            frame.clipped_centre = float(np.count_nonzero(clipped)) / max(centre.size, 1)
         return frame.clipped_centre
 
     def _textureless(self, frame: _Frame) -> bool:
