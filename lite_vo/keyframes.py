@@ -330,46 +330,13 @@ def _neighbours(kfs: list[Keyframe], i: int, n: int, depth: float) -> list[int]:
     return [j for _, j in sorted(d)[:n]]
 
 
-def _support(kf: Keyframe, p_world: np.ndarray, rel_tol: float, win: int) -> tuple[np.ndarray, np.ndarray]:
-    """For world points: (seen: the keyframe has a hypothesis near the projection, agree: one of
-    those hypotheses has the point's inverse depth within ``rel_tol``)."""
-    n = len(p_world)
-    seen = np.zeros(n, bool)
-    agree = np.zeros(n, bool)
-    p = transform_points(inverse_se3(kf.T_world_cam), p_world)
-    c = kf.camera
-    front = p[:, 2] > 1e-9
-    if not front.any():
-        return seen, agree
-    uv = c.project(p[front])
-    ui = np.rint(uv[:, 0]).astype(np.int64)
-    vi = np.rint(uv[:, 1]).astype(np.int64)
-    ids = np.nonzero(front)[0]
-    inside = (ui >= win) & (ui < c.width - win) & (vi >= win) & (vi < c.height - win)
-    ids, ui, vi = ids[inside], ui[inside], vi[inside]
-    want = 1.0 / p[ids, 2]
-    D = kf.idepth
-    for dv in range(-win, win + 1):
-        for du in range(-win, win + 1):
-            d = D[vi + dv, ui + du]
-            ok = np.isfinite(d)
-            seen[ids[ok]] = True
-            agree[ids[ok & (np.abs(d - want) <= rel_tol * want)]] = True
-    return seen, agree
-
-
 def depth_jump(idepth: np.ndarray, radius: int = 2) -> np.ndarray:
     """Per pixel, the largest relative inverse-depth difference ``|d_q - d_p| / d_p`` to a hypothesis
     ``q`` within ``radius`` pixels (0 where there is none; NaN where ``p`` has no hypothesis)."""
-    D = np.asarray(idepth, np.float64)
-    H, W = D.shape
-    P = np.pad(D, radius, constant_values=np.nan)
-    out = np.zeros_like(D)
-    for dv in range(2 * radius + 1):
-        for du in range(2 * radius + 1):
-            q = P[dv:dv + H, du:du + W]
-            out = np.fmax(out, np.abs(q - D) / D)     # fmax ignores the NaN of missing neighbours
-    out[~np.isfinite(D)] = np.nan
+    from ._cloud_kernels import depth_jump_kernel
+    D = np.array(idepth, np.float64)
+    out = np.empty_like(D)
+    depth_jump_kernel(D, int(radius), out)
     return out
 
 
@@ -417,6 +384,7 @@ def scene_cloud_parts(keyframes, max_rel_std: float = 0.5, rel_tol: float = 0.07
                       clipped: float = 250.0):
     """The points of :func:`scene_cloud` (without ``voxel``), one :class:`PointCloud` per keyframe
     that keeps points, in the same order: a large cloud can be written without holding all of it."""
+    from ._cloud_kernels import support_counts
     kfs = keyframes.current() if isinstance(keyframes, KeyframeStore) else list(keyframes)
     if kfs:
         kfs = [k for k in kfs if k.scale_id == kfs[-1].scale_id]
@@ -434,12 +402,13 @@ def scene_cloud_parts(keyframes, max_rel_std: float = 0.5, rel_tol: float = 0.07
             continue
         p_world = transform_points(kf.T_world_cam, p_cam)
         if min_support > 0 and len(kfs) > 1:
-            count = np.zeros(len(u), np.int64)
-            seen_n = np.zeros(len(u), np.int64)
+            count = np.zeros(len(u), np.int64)      # neighbours that agree with each point
+            seen_n = np.zeros(len(u), np.int64)     # neighbours with a hypothesis near it
             for j in _neighbours(kfs, i, neighbours, depth):
-                seen, agree = _support(kfs[j], p_world, rel_tol, window)
-                count += agree
-                seen_n += seen
+                kj = kfs[j]
+                c = kj.camera
+                support_counts(transform_points(inverse_se3(kj.T_world_cam), p_world), c.fx, c.fy, c.cx, c.cy,
+                               int(c.width), int(c.height), kj.idepth, float(rel_tol), int(window), count, seen_n)
             keep = (count >= min_support) & (count >= min_agree * seen_n)
             p_world, u, v, var = p_world[keep], u[keep], v[keep], var[keep]
         if len(u) == 0:

@@ -30,7 +30,7 @@ from typing import Callable, Iterable
 CORE_KERNEL_MODULES: tuple[str, ...] = ("lite_vo.image", "lite_vo.tracking._kernels", "lite_vo.mapping._kernels")
 
 #: The core's kernel modules in warm-up order; each exposes ``warmup() -> None``.
-KERNEL_MODULES: tuple[str, ...] = CORE_KERNEL_MODULES + ("lite_vo.synth._kernels",)
+KERNEL_MODULES: tuple[str, ...] = CORE_KERNEL_MODULES + ("lite_vo.synth._kernels", "lite_vo._cloud_kernels")
 
 #: Entry-point group through which plug-ins register kernel modules.
 KERNEL_ENTRY_POINTS = "lite_vo.kernels"

@@ -12,7 +12,7 @@ def test_core_kernels_and_system_run_without_scipy(synth_small):
         sys.modules["scipy"] = None  # any "import scipy..." now raises ImportError
         from lite_vo.warmup import warmup
         results = warmup(["lite_vo.image", "lite_vo.tracking._kernels", "lite_vo.mapping._kernels",
-                          "lite_vo.synth._kernels"])
+                          "lite_vo.synth._kernels", "lite_vo._cloud_kernels"])
         bad = [(r.module, r.message) for r in results if r.status != "ok"]
         assert not bad, bad
         import lite_vo

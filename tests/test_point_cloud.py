@@ -122,3 +122,54 @@ def test_map_voxel_option_thins_map_ply(synth_small, tmp_path, capsys):
     assert main(args + ["--out", str(tmp_path / "bad"), "--map-voxel", "-1"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--map-voxel" in err[0]
+
+
+def _semi_dense(rng, h=48, w=64, density=0.4):
+    """A semi-dense inverse-depth map: smooth depth with steps, NaN where there is no hypothesis."""
+    v, u = np.mgrid[0:h, 0:w]
+    d = (0.5 + 0.3 * np.sin(u / 7.0) + 0.2 * (v > h // 2)).astype(np.float32)
+    d[rng.random((h, w)) > density] = np.nan
+    return d
+
+
+def test_the_consistency_kernel_matches_its_numpy_twin():
+    """support_counts gives, point for point, what one numpy pass per window offset gives: points behind
+    the camera, outside the image, at the border, on and off the map's depth, window 0 / 1 / 2."""
+    import naive_cloud as naive
+
+    from lite_vo._cloud_kernels import support_counts
+    rng = np.random.default_rng(5)
+    d = _semi_dense(rng)
+    d.setflags(write=False)
+    n = 4000
+    uv = rng.uniform(-6, 70, (n, 2))
+    z = 1.0 / np.nan_to_num(d[np.clip(uv[:, 1].astype(int), 0, 47), np.clip(uv[:, 0].astype(int), 0, 63)], nan=0.6)
+    z *= rng.choice([1.0, 1.03, 1.2, -1.0], n)              # agree, within 7 %, off, behind
+    z[:5] = 0.0
+    p = np.stack([(uv[:, 0] - CAM.cx) / CAM.fx * z, (uv[:, 1] - CAM.cy) / CAM.fy * z, z], axis=1)
+    p[5:25, :2] = np.round(uv[5:25] - [CAM.cx, CAM.cy]) + 0.5             # projections exactly half-way
+    p[5:25, :2] /= [CAM.fx, CAM.fy]
+    p[5:25, 2] = 1.0
+    for win in (0, 1, 2):
+        count = np.zeros(n, np.int64)
+        seen_n = np.zeros(n, np.int64)
+        for _ in range(2):                                  # counts add up over neighbours
+            support_counts(p, CAM.fx, CAM.fy, CAM.cx, CAM.cy, 64, 48, d, 0.07, win, count, seen_n)
+        seen, agree = naive.support(p, CAM.fx, CAM.fy, CAM.cx, CAM.cy, 64, 48, d, 0.07, win)
+        np.testing.assert_array_equal(seen_n, 2 * seen)
+        np.testing.assert_array_equal(count, 2 * agree)
+        assert 100 < agree.sum() < seen.sum() < n           # every outcome occurs
+
+
+def test_the_depth_jump_kernel_matches_its_numpy_twin():
+    import naive_cloud as naive
+    rng = np.random.default_rng(6)
+    d = _semi_dense(rng).astype(np.float64)
+    d[0, :8] = 0.0                                          # degenerate hypotheses: inf / NaN ratios
+    d[5, 5] = np.inf
+    for radius in (0, 1, 2, 3):
+        got = depth_jump(d, radius)
+        want = naive.depth_jump(d, radius)
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+        np.testing.assert_array_equal(got[~np.isnan(got)], want[~np.isnan(want)])
+    assert np.nanmax(depth_jump(d, 2)) > 0.3
