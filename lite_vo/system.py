@@ -50,7 +50,7 @@ from .bootstrap import InitVerifier, patch_affine
 from .camera import Camera, PinholeIntrinsics
 from .config import VOConfig, tracking_level
 from .errors import InputError, LiteVOError
-from .geometry import inverse_se3, project_to_se3
+from .geometry import exp_se3, inverse_se3, log_se3, project_to_se3
 from .image import image_pyramid
 from .keyframes import Keyframe, KeyframeStore, PointCloud, scene_cloud
 from .mapping import MapFrame, Mapper, depth_accuracy, image_gradients
@@ -71,6 +71,12 @@ BLOWN_OUT_START = 0.5
 #: lens darkens the rest of the frame, so the share over the whole frame understates a blown-out exposure
 #: (on ICL's auto-exposure frames a whole-frame share of 0.5 goes with 0.65-0.75 in the centre)
 BLOWN_OUT_START_CENTRE = 0.7
+#: the constant-velocity guess is scaled to the time since the last good pose when that is more than this many
+#: times (or less than its inverse) the time the last motion took (:meth:`VisualOdometry._velocity_over`)
+VELOCITY_TIME_RATIO = 1.5
+#: a frame this many times the last motion's time after the last good pose follows a gap in the input: its
+#: brightness may have changed by more than tracking.max_gain_change against the reference (:meth:`_after_gap`)
+GAP_FACTOR = 2.0
 #: the centre whose clipped share system.start_max_clipped_centre bounds: pixels nearer the principal point than
 #: this fraction of its distance to the farthest image corner (where a vignette darkens by a quarter of its corners'
 #: fall-off at most, for a fall-off in r^2)
@@ -323,6 +329,8 @@ class VisualOdometry:
         self._last_pose: np.ndarray | None = None
         self._last_good_pose: np.ndarray | None = None
         self._velocity = np.eye(4)
+        self._velocity_dt = 0.0          # the time the velocity's motion took (0: no velocity)
+        self._pose_t = 0.0               # timestamp of _last_good_pose
         self._lost_count = 0
         self._photometric = photometric
         # the vignette estimated during the run (system.auto_vignette): fed the published maps, it hands a
@@ -789,6 +797,8 @@ class VisualOdometry:
         self._last_pose = T_world_cam.copy()
         self._last_good_pose = T_world_cam.copy()
         self._velocity = np.eye(4)
+        self._velocity_dt = 0.0
+        self._pose_t = frame.timestamp
         self._lost_count = 0
         self.counts["tracked"] += 1
         if event == "reinit":
@@ -876,7 +886,7 @@ class VisualOdometry:
         ref = self._in_correction(self._current_reference(), frame.vig)
         T_ref_world = inverse_se3(ref.T_world_ref)
         base = self._last_pose if self._lost_count == 0 else self._last_good_pose
-        guess_world = base @ self._velocity if self.config.tracking.constant_velocity else base
+        guess_world = base @ self._velocity_over(frame.timestamp) if self.config.tracking.constant_velocity else base
         T_guess = T_ref_world @ guess_world
         sigma = self._tracking_sigma(frame)
         measured = None
@@ -887,8 +897,8 @@ class VisualOdometry:
             if rel is not None and init_affine is not None:
                 measured = affine_transfer(ref.affine, compose_affine(init_affine, rel))
         motion = (T_ref_world @ base, self._velocity)
-        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, self._monitor.affine_guess(ref.affine),
-                                 sigma, motion=motion)
+        affine_guess = self._monitor.affine_guess(ref.affine)
+        tr = self._tracker.track(ref.tracking_ref, frame.pyramid, T_guess, affine_guess, sigma, motion=motion)
         if measured is not None and _brightness_disagrees(tr.affine, measured):
             # on an unverified random map a free gain can collapse (shrinks towards 0, the offset
             # towards the mean): track again holding the measured brightness
@@ -912,6 +922,14 @@ class VisualOdometry:
             rel = _aligned_brightness(prev_image, frame.pyramid[self.track_level], self.config.tracking.saturation)
             if rel is not None and not _brightness_disagrees(
                     tr.affine, affine_transfer(ref.affine, compose_affine(prev_affine, rel))):
+                tr.lost_reason = self._tracker.lost_reason(tr, check_residual=self._verifier is None, check_gain=False)
+                tr.lost = bool(tr.lost_reason)
+        if tr.lost_reason == "implausible brightness change" and self._after_gap(frame.timestamp):
+            # after a gap in the input (frames dropped, a stalled reader or sink) the exposure had longer to change
+            # than the gain's bound against the reference allows; the change is real when it continues the
+            # brightness chain (a collapsed gain does not)
+            bound = self.config.tracking.max_gain_change
+            if affine_guess[0] > 0 and 1.0 / bound <= tr.affine[0] / affine_guess[0] <= bound:
                 tr.lost_reason = self._tracker.lost_reason(tr, check_residual=self._verifier is None, check_gain=False)
                 tr.lost = bool(tr.lost_reason)
         for lvl, ms in tr.level_ms.items():
@@ -962,7 +980,7 @@ class VisualOdometry:
                 return res
             return FrameResult(frame.index, frame.timestamp, None, True, quality, event="lost")
         event = "recovered" if self._lost_count > 0 else ""
-        self._accept_pose(T_world_new, smooth=self._lost_count == 0)
+        self._accept_pose(T_world_new, frame.timestamp, smooth=self._lost_count == 0)
         frame.T_world_cam = T_world_new
         frame.residual = float(tr.residual)
         self.counts["tracked"] += 1
@@ -1004,7 +1022,7 @@ class VisualOdometry:
         T_world_new = rel.T_world_new
         log.info("relocalised frame %d against keyframe %d (%s guess, %d tracking calls)", frame.index,
                  kf.index, rel.guess, rel.tried)
-        self._accept_pose(T_world_new, smooth=False)
+        self._accept_pose(T_world_new, frame.timestamp, smooth=False)
         frame.T_world_cam = T_world_new
         frame.residual = float(tr.residual)
         self.counts["tracked"] += 1
@@ -1030,16 +1048,38 @@ class VisualOdometry:
             log.info("re-initialisation due at frame %d waits for a frame that is not blown out or black", frame.index)
         return frame.timestamp - self._reinit_wait_t0 < self.config.system.start_max_wait_s
 
-    def _accept_pose(self, T_world_new: np.ndarray, smooth: bool) -> None:
-        """Book-keeping of a tracked pose: velocity (constant-velocity guess) and last poses."""
+    def _accept_pose(self, T_world_new: np.ndarray, t: float, smooth: bool) -> None:
+        """Book-keeping of a tracked pose (of the frame at time ``t``): velocity (constant-velocity guess) and
+        last poses."""
         if smooth and self._last_pose is not None:
             self._velocity = inverse_se3(self._last_pose) @ T_world_new
+            self._velocity_dt = t - self._pose_t
         else:
             self._velocity = np.eye(4)
+            self._velocity_dt = 0.0
+        self._pose_t = t
         self._lost_count = 0
         self._reinit_wait_t0 = None
         self._last_pose = T_world_new
         self._last_good_pose = T_world_new
+
+    def _after_gap(self, t: float) -> bool:
+        """Whether a frame at time ``t`` comes more than ``GAP_FACTOR`` times the last motion's time after the last
+        good pose (frames dropped in realtime mode, a stalled input, lost frames)."""
+        return self._velocity_dt > 0 and t - self._pose_t > GAP_FACTOR * self._velocity_dt
+
+    def _velocity_over(self, t: float) -> np.ndarray:
+        """The constant-velocity motion from the last good pose to a frame at time ``t``: the last motion,
+        scaled to the time since that pose when it differs from the last motion's by more than
+        ``VELOCITY_TIME_RATIO`` (frames dropped in realtime mode, a stalled input, lost frames; evenly
+        spaced frames keep the plain per-frame velocity)."""
+        dt = self._velocity_dt
+        if not dt > 0:
+            return self._velocity
+        r = (t - self._pose_t) / dt
+        if not r > 0 or 1.0 / VELOCITY_TIME_RATIO <= r <= VELOCITY_TIME_RATIO:
+            return self._velocity
+        return exp_se3(r * log_se3(self._velocity))
 
     def _apply_bootstrap(self, boot, frame: _Frame, quality: dict) -> FrameResult:
         """Replace a badly initialised random map: replay the filter with two-view + PnP poses."""
@@ -1101,7 +1141,7 @@ class VisualOdometry:
             self._recent_affine[frame.index] = frame.affine
         self._scale_id += 1                 # the two-view map has another scale than the random one
         self._install_mapper(mapper, frame)
-        self._accept_pose(T_world_cur, smooth=False)
+        self._accept_pose(T_world_cur, frame.timestamp, smooth=False)
         self.counts["tracked"] += 1
         self.counts["bootstrap"] += 1
         self.timers.add("bootstrap", (time.perf_counter() - t) * 1e3)

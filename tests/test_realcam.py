@@ -405,3 +405,35 @@ def test_an_exposure_step_beyond_the_gain_bound_is_tracked_when_the_frames_show_
     assert res[15].quality["affine_a"] == pytest.approx(0.45, rel=0.05), res[15].quality
     assert [r.event for r in res if r.event] == ["init"] and not any(r.lost for r in res)
     assert res[20].quality["brightness_a"] == pytest.approx(0.45, rel=0.05)
+
+
+def test_frames_after_a_gap_in_the_input_keep_their_exposure_and_their_track(tmp_path):
+    """Eight frames missing from the input (dropped in realtime mode or a stalled reader: 0.27 s) while the
+    exposure falls by 7 % a frame: against the reference the first frames after the gap have gains of
+    0.42-0.48, beyond tracking.max_gain_change, but they continue the brightness chain, so they are
+    tracked with the right brightness and pose (before: lost frame after frame as an "implausible
+    brightness change" until the ramp ended). The constant-velocity guess spans the gap's 9 frames."""
+    from lite_vo.synth import generate_sequence
+    import lite_vo
+    generate_sequence(tmp_path / "s", scene="room", trajectory="handheld", n_frames=32, seed=2, width=320, height=240)
+    seq = lite_vo.open_sequence(tmp_path / "s")
+    gt = seq.groundtruth
+    cfg = load_profile("phone", ["system.init=depth"])
+    res, truth = [], []
+    with VisualOdometry(seq.camera, cfg) as vo:
+        for k, fr in enumerate(seq.frames()):
+            if 14 <= k < 22:
+                continue                                    # the gap
+            gain = 0.93 ** k
+            img = np.clip(np.rint(np.asarray(fr.image, np.float32) * gain), 0, 255).astype(np.uint8)
+            res.append(vo.process(img, fr.timestamp, depth=fr.depth))
+            truth.append((gain, gt.poses[int(np.argmin(np.abs(gt.timestamps - fr.timestamp)))]))
+    after = res[14:]
+    bound = 1.0 / cfg.tracking.max_gain_change
+    assert after[0].quality["affine_a"] < bound                # beyond the bound against the reference
+    assert not any(r.lost for r in res) and not any(r.event for r in res[1:])
+    T0 = np.linalg.inv(truth[0][1])                          # the VO's world is the first camera
+    err = [np.linalg.norm(r.T_world_cam[:3, 3] - (T0 @ T_gt)[:3, 3]) for r, (_, T_gt) in zip(res, truth)]
+    assert max(err) < 0.01, np.round(err, 4)                  # depth start: metres
+    for r, (gain, _) in zip(res[1:], truth[1:]):
+        assert r.quality["brightness_a"] == pytest.approx(gain, rel=0.05), (r.index, r.quality["brightness_a"], gain)
