@@ -24,7 +24,8 @@ persistent AR world and, later, relocalisation.
 Thread safety: every method takes the store's lock; keyframes are frozen dataclasses with read-only
 arrays, so a snapshot (a list) can be used without the lock while the store moves on.
 
-Imports: numpy, OpenCV, lite_vo (camera, geometry) only.
+Imports: numpy, OpenCV, lite_vo (camera, geometry) only; the point cloud loads its numba kernels
+(:mod:`lite_vo._cloud_kernels`) when it is made.
 """
 from __future__ import annotations
 

@@ -29,11 +29,17 @@ def test_a_run_after_warmup_compiles_nothing_new(synth_small):
     warmup([m for m in KERNEL_MODULES if m.startswith("lite_vo")])
     before = {k: len(d.signatures) for k, d in _dispatchers().items()}
     seq = lite_vo.open_sequence(synth_small)
+    n_kf = n_points = 0
     for init in ("depth", "random"):
-        cfg = lite_vo.load_profile("phone", [f'system.init="{init}"'])
+        # every published map a keyframe: the cloud's cross-keyframe check runs within ten frames
+        cfg = lite_vo.load_profile("phone", [f'system.init="{init}"', "system.keyframe_min_move=0",
+                                             "system.keyframe_min_turn_deg=0"])
         with lite_vo.VisualOdometry(seq.camera, cfg) as vo:
             for fr, _ in zip(seq, range(10)):
                 vo.process(fr.image, fr.timestamp, depth=fr.depth)
+            n_kf = max(n_kf, len(vo.keyframes))
+            n_points += len(vo.point_cloud().points)         # map.ply's cloud: its kernels too
+    assert n_kf >= 2 and n_points > 0                        # (the cross-keyframe check ran)
     after = {k: len(d.signatures) for k, d in _dispatchers().items()}
     new = {k: after[k] - before.get(k, 0) for k in after if after[k] != before.get(k, 0)}
     assert new == {}, f"kernels compiled after warmup (signatures missing from warmup()): {new}"
