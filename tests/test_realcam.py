@@ -437,3 +437,20 @@ def test_frames_after_a_gap_in_the_input_keep_their_exposure_and_their_track(tmp
     assert max(err) < 0.01, np.round(err, 4)                  # depth start: metres
     for r, (gain, _) in zip(res[1:], truth[1:]):
         assert r.quality["brightness_a"] == pytest.approx(gain, rel=0.05), (r.index, r.quality["brightness_a"], gain)
+
+
+def test_stall_check_tool_drops_the_frames_of_a_stall_and_reports_the_run(synth_small, capsys):
+    """tools/stall_check.py (the README's stall figures): a realtime run whose session thread blocks for 0.3 s
+    after frame 10 sees fewer frames than the sequence has (those that arrived meanwhile were dropped),
+    and the synthetic room with a depth start stays tracked through it."""
+    import re
+    spec = importlib.util.spec_from_file_location("stall_check", ROOT / "tools" / "stall_check.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.main([str(synth_small), "--frame", "10", "--stall", "0.3", "--init", "depth"]) == 0
+    out = capsys.readouterr().out
+    m = re.search(r"run 1: ATE ([0-9.]+) % of the path, (\d+) frames seen \(0\.3 s stall after frame 10\), (\d+) lost",
+                  out)
+    assert m, out
+    ate, seen, lost = float(m.group(1)), int(m.group(2)), int(m.group(3))
+    assert seen <= 45 - 6 and lost == 0 and ate < 2.0, out
