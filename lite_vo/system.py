@@ -10,7 +10,8 @@ Threads and ownership
 ``mode="realtime"`` runs mapping in a second thread:
 
 * **tracking thread** (the caller of :meth:`VisualOdometry.process`) only: ``_tracker``,
-  ``_verifier``, ``_last_pose``, ``_velocity``, ``_lost_count``, the timers of tracking.
+  ``_verifier``, ``_last_pose``, ``_velocity`` (``_velocity_dt``: the time it took; ``_pose_t``: the last good
+  pose's time), ``_lost_count``, the timers of tracking.
 * **mapping thread** only: the *contents* of ``_mapper`` (``update``), the mapping timers.
 * **shared**: ``_reference`` (an immutable :class:`TrackingReference` plus the pose of the frame it
   lives in), swapped under ``_ref_lock`` by whoever built it; ``_pending`` (the newest tracked
