@@ -916,23 +916,9 @@ class VisualOdometry:
             measured_gain = measured is not None and not _brightness_disagrees(tr.affine, measured)
             tr.lost_reason = self._tracker.lost_reason(tr, check_residual=False, check_gain=not measured_gain)
             tr.lost = bool(tr.lost_reason)
-        if tr.lost_reason == "implausible brightness change" and self._prev_tracked is not None:
-            # an exposure step (auto-exposure jumping by more than the bound in one frame) is real when the
-            # last tracked frame and this one, nearly the same view, show the same change on patch means
-            prev_image, prev_affine = self._prev_tracked
-            rel = _aligned_brightness(prev_image, frame.pyramid[self.track_level], self.config.tracking.saturation)
-            if rel is not None and not _brightness_disagrees(
-                    tr.affine, affine_transfer(ref.affine, compose_affine(prev_affine, rel))):
-                tr.lost_reason = self._tracker.lost_reason(tr, check_residual=self._verifier is None, check_gain=False)
-                tr.lost = bool(tr.lost_reason)
-        if tr.lost_reason == "implausible brightness change" and self._after_gap(frame.timestamp):
-            # after a gap in the input (frames dropped, a stalled reader or sink) the exposure had longer to change
-            # than the gain's bound against the reference allows; the change is real when it continues the
-            # brightness chain (a collapsed gain does not)
-            bound = self.config.tracking.max_gain_change
-            if affine_guess[0] > 0 and 1.0 / bound <= tr.affine[0] / affine_guess[0] <= bound:
-                tr.lost_reason = self._tracker.lost_reason(tr, check_residual=self._verifier is None, check_gain=False)
-                tr.lost = bool(tr.lost_reason)
+        if tr.lost_reason == "implausible brightness change" and self._gain_change_is_real(tr, ref, frame, affine_guess):
+            tr.lost_reason = self._tracker.lost_reason(tr, check_residual=self._verifier is None, check_gain=False)
+            tr.lost = bool(tr.lost_reason)
         for lvl, ms in tr.level_ms.items():
             self.timers.add(f"track_lvl{lvl}", ms)
         quality = {"residual": float(tr.residual), "good_ratio": float(tr.good_ratio), "hypothesis": tr.hypothesis,
@@ -1063,6 +1049,24 @@ class VisualOdometry:
         self._reinit_wait_t0 = None
         self._last_pose = T_world_new
         self._last_good_pose = T_world_new
+
+    def _gain_change_is_real(self, tr, ref: _Reference, frame: _Frame, affine_guess: tuple) -> bool:
+        """Whether a gain beyond ``tracking.max_gain_change`` against the reference is a real exposure change."""
+        if self._prev_tracked is not None:
+            # an exposure step (auto-exposure jumping by more than the bound in one frame) is real when the
+            # last tracked frame and this one, nearly the same view, show the same change on patch means
+            prev_image, prev_affine = self._prev_tracked
+            rel = _aligned_brightness(prev_image, frame.pyramid[self.track_level], self.config.tracking.saturation)
+            if rel is not None and not _brightness_disagrees(
+                    tr.affine, affine_transfer(ref.affine, compose_affine(prev_affine, rel))):
+                return True
+        if self._after_gap(frame.timestamp):
+            # after a gap in the input (frames dropped, a stalled reader or sink) the exposure had longer to change
+            # than the gain's bound against the reference allows; the change is real when it continues the
+            # brightness chain (a collapsed gain does not)
+            bound = self.config.tracking.max_gain_change
+            return affine_guess[0] > 0 and 1.0 / bound <= tr.affine[0] / affine_guess[0] <= bound
+        return False
 
     def _after_gap(self, t: float) -> bool:
         """Whether a frame at time ``t`` comes more than ``GAP_FACTOR`` times the last motion's time after the last
