@@ -79,7 +79,8 @@ def _run_line(cur, ref, gx, gy, T_ref_cur, Kc, x, y, lo, prior, hi, prm, impl, r
     gxi, gyi = float(gx[y, x]), float(gy[y, x])
     if impl == "kernel":
         return kernels.line_stereo(cur, ref, float(x), float(y), ex, ey, lo, prior, hi, R, t, fx, fy, cx, cy, gxi, gyi,
-                                   residual, prm, allow_long, ref_a, ref_b, np.empty(64), np.empty(64))
+                                   residual, prm, allow_long, ref_a, ref_b, np.empty(64), np.empty(64),
+                                   np.empty(64), np.empty(64, np.uint64))
     return naive.line_stereo(cur, ref, float(x), float(y), ex, ey, lo, prior, hi, R, t, fx, fy, cx, cy, gxi, gyi,
                              residual, prm, allow_long, ref_a, ref_b, 64)
 
@@ -110,6 +111,33 @@ def test_line_stereo_matches_naive(tex, motion):
         assert n_ok > 3   # the comparison exercised successful matches too
 
 
+def test_min_in_is_a_plain_scan():
+    """The stereo pass's interleaved minimum equals one scan with ``<`` from 1e50 on every range:
+    NaN never counts, 1e50 and above never win, ties, ranges shorter than the four scans, empty ranges."""
+    rng = np.random.default_rng(7)
+
+    def scan(a, lo, hi):
+        m = 1e50
+        for k in range(lo, hi):
+            if a[k] < m:
+                m = a[k]
+        return m
+
+    for trial in range(400):
+        n = int(rng.integers(0, 40))
+        a = rng.integers(0, 6, n).astype(np.float64)       # few values: many ties
+        if trial % 3 == 0 and n:
+            a[rng.integers(0, n, max(1, n // 4))] = np.nan
+        if trial % 5 == 0 and n:
+            a[rng.integers(0, n, max(1, n // 3))] = rng.choice([1e50, 2e50, np.inf])
+        if trial % 7 == 0:
+            a[:] = np.nan
+        lo = int(rng.integers(-2, n + 2))
+        hi = int(rng.integers(-2, n + 2))
+        lo, hi = max(lo, 0), min(hi, n)
+        assert kernels._min_in(a, lo, hi) == scan(a, lo, hi), (a, lo, hi)
+
+
 def test_line_stereo_edge_cases(tex):
     img_ref, cur, _, T_ref_cur = _stereo_case(tex, pose(), pose(tx=0.05), K_SMALL)
     gx, gy, _ = image_gradients(cur)
@@ -118,7 +146,7 @@ def test_line_stereo_edge_cases(tex):
     args = (K_SMALL.fx, K_SMALL.fy, K_SMALL.cx, K_SMALL.cy, 1.0, 1.0, 0.0, prm, True, 1.0, 0.0)
     for impl in ("kernel", "naive"):
         f = kernels.line_stereo if impl == "kernel" else naive.line_stereo
-        extra = (np.empty(64), np.empty(64)) if impl == "kernel" else (64,)
+        extra = (np.empty(64), np.empty(64), np.empty(64), np.empty(64, np.uint64)) if impl == "kernel" else (64,)
         # five samples leave the image at the border
         assert f(cur, img_ref, 1.0, 20.0, 1.0, 0.0, 0.0, 0.5, 2.0, R, t, *args, *extra)[0] == kernels.OUT_OF_IMAGE
         # NaN pose

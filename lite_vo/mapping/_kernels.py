@@ -112,13 +112,17 @@ NO_EPL = -6            # (observe only) epipolar line too short or gradient alon
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
 def _bilinear(img, x, y):
-    """Bilinear sample; the caller guarantees 0 <= x < W-1 and 0 <= y < H-1."""
+    """Bilinear sample; the caller guarantees 0 <= x < W-1 and 0 <= y < H-1 (unsigned indices: numba
+    skips its negative-index wrap-around)."""
     ix = int(x)
     iy = int(y)
     dx = x - ix
     dy = y - iy
-    return ((1.0 - dx) * (1.0 - dy) * img[iy, ix] + dx * (1.0 - dy) * img[iy, ix + 1]
-            + (1.0 - dx) * dy * img[iy + 1, ix] + dx * dy * img[iy + 1, ix + 1])
+    ux = np.uint64(ix)
+    uy = np.uint64(iy)
+    one = np.uint64(1)
+    return ((1.0 - dx) * (1.0 - dy) * img[uy, ux] + dx * (1.0 - dy) * img[uy, ux + one]
+            + (1.0 - dx) * dy * img[uy + one, ux] + dx * dy * img[uy + one, ux + one])
 
 
 #: rows per block of the parallel stereo pass's row order (:func:`interleaved_rows`)
@@ -252,14 +256,44 @@ def _slide_into(p, q, dp, dq, lo, hi):
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
+def _min_in(a, lo, hi):
+    """The smallest of ``a[lo:hi]`` below 1e50, else 1e50 (NaN never counts): what one scan with ``<``
+    starting from 1e50 finds, as four interleaved scans (no chain of dependent compares: the stereo
+    pass's best and second-best match, 10 % of its time)."""
+    m0 = 1e50
+    m1 = 1e50
+    m2 = 1e50
+    m3 = 1e50
+    k = lo
+    while k + 4 <= hi:
+        v0 = a[k]
+        v1 = a[k + 1]
+        v2 = a[k + 2]
+        v3 = a[k + 3]
+        m0 = v0 if v0 < m0 else m0
+        m1 = v1 if v1 < m1 else m1
+        m2 = v2 if v2 < m2 else m2
+        m3 = v3 if v3 < m3 else m3
+        k += 4
+    while k < hi:
+        v0 = a[k]
+        m0 = v0 if v0 < m0 else m0
+        k += 1
+    m0 = m1 if m1 < m0 else m0
+    m2 = m3 if m3 < m2 else m2
+    return m2 if m2 < m0 else m0
+
+
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
 def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, fy, cx, cy,
-                gxi, gyi, track_residual, prm, allow_long, ref_a, ref_b, samples, ssd):
+                gxi, gyi, track_residual, prm, allow_long, ref_a, ref_b, samples, ssd, frac_y, at):
     """Search the epipolar line of current pixel (u, v) in ``ref``.
 
     ``R, t`` = T_ref_cur; ``(epxn, epyn)`` unit epipolar direction in the current image;
     ``ref_a, ref_b``: brightness transfer of the reference into the current frame (the SSD compares
     ``ref_a * I_ref + ref_b`` with ``I_cur``: exposure changes do not bias the match);
-    ``(gxi, gyi)`` half-central-difference gradient at (u, v); ``samples``/``ssd`` scratch.
+    ``(gxi, gyi)`` half-central-difference gradient at (u, v); ``samples``, ``ssd``, ``frac_y`` (float64)
+    and ``at`` (uint64) scratch.
     Returns (code, idepth, idepth_var, epl_length, error).
     """
     h, w = cur.shape
@@ -346,8 +380,27 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     if n_steps + 4 > samples.shape[0]:
         n_steps = samples.shape[0] - 4
     # reference samples at far + (j - 2) * inc, j = 0 .. n_steps + 3 (all inside by the border test)
+    # bilinear, the same arithmetic as _bilinear, in two loops: the positions (vectorised; their x
+    # fractions kept in ssd until the SSDs overwrite them), then the four pixels of each
+    rw = ref.shape[1]
+    flat = ref.reshape(ref.size)
     for j in range(n_steps + 4):
-        sv = _bilinear(ref, far_x + (j - 2) * incx, far_y + (j - 2) * incy)
+        x = far_x + (j - 2) * incx
+        y = far_y + (j - 2) * incy
+        ix = int(x)
+        iy = int(y)
+        ssd[j] = x - ix
+        frac_y[j] = y - iy
+        at[j] = iy * rw + ix
+    one = np.uint64(1)
+    down = np.uint64(rw)
+    down1 = np.uint64(rw + 1)
+    for j in range(n_steps + 4):
+        k = at[j]
+        dx = ssd[j]
+        dy = frac_y[j]
+        sv = ((1.0 - dx) * (1.0 - dy) * flat[k] + dx * (1.0 - dy) * flat[k + one]
+              + (1.0 - dx) * dy * flat[k + down] + dx * dy * flat[k + down1])
         samples[j] = ref_a * sv + ref_b if sv < sat else 1e6     # clipped: no window through it matches
     # the SSD of every window first (a branch-free loop), then the best: 4 % less stereo time than one loop
     for k in range(n_steps):
@@ -357,16 +410,15 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
         e3 = samples[k + 3] - c3
         e4 = samples[k + 4] - c4
         ssd[k] = e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3 + e4 * e4
-    best = 0
-    best_err = 1e50
-    for k in range(n_steps):
-        if ssd[k] < best_err:
-            best_err = ssd[k]
-            best = k
-    second_err = 1e50
-    for k in range(n_steps):
-        if abs(k - best) >= 2 and ssd[k] < second_err:
-            second_err = ssd[k]
+    best_err = _min_in(ssd, 0, n_steps)
+    best = 0                     # the first window with the smallest SSD (0 when none is below 1e50)
+    if best_err < 1e50:
+        while ssd[best] != best_err:
+            best += 1
+    second_err = _min_in(ssd, 0, best - 1)
+    e_hi = _min_in(ssd, best + 2, n_steps)
+    if e_hi < second_err:
+        second_err = e_hi
     if not (best_err <= 4.0 * prm[P_SSD_MAX]):
         return NO_MATCH, 0.0, 0.0, epl_length, best_err
     if prm[P_AMBIGUITY] * best_err > second_err:
@@ -466,6 +518,8 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
         y = rows[yi]
         samples = np.empty(scratch_len, np.float64)
         ssd = np.empty(scratch_len, np.float64)
+        frac_y = np.empty(scratch_len, np.float64)
+        at = np.empty(scratch_len, np.uint64)
         for x in range(3, w - 3):
             status[y, x] = 0
             has = valid[y, x] != 0
@@ -527,7 +581,7 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
                 code, r_id, r_var, r_len, r_err = line_stereo(
                     cur, ref_images[slot], px, py, epxn, epyn, lo, prior, hi, ref_R[b], ref_t[b],
                     fx, fy, cx, cy, gxi, gyi, ref_residual[b], prm, b == nref - 1, ref_aff[b, 0], ref_aff[b, 1],
-                    samples, ssd)
+                    samples, ssd, frac_y, at)
                 used = b
                 if code == OUT_OF_IMAGE or code == TOO_LONG:
                     b += 1
@@ -1061,5 +1115,6 @@ def warmup(runtime: bool = False) -> None:
     # the per-pixel helpers are inlined into observe_kernel; compile their standalone versions too
     epipolar_direction(img, 10, 10, 10.0, 10.0, -t, 30.0, 30.0, 15.5, 11.5, prm)
     line_length(10.0, 10.0, 0.0, 1.0, R, t, 30.0, 30.0, 15.5, 11.5)
+    _min_in(np.empty(8), 0, 8)
     line_stereo(img, img, 10.0, 10.0, 1.0, 0.0, 0.0, 1.0, 2.0, R, t, 30.0, 30.0, 15.5, 11.5, 1.0, 0.0, 0.0,
-                prm, True, 1.0, 0.0, np.empty(64), np.empty(64))
+                prm, True, 1.0, 0.0, np.empty(64), np.empty(64), np.empty(64), np.empty(64, np.uint64))
