@@ -657,8 +657,9 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
     Two passes, both parallel, and the result does not depend on the number of threads:
 
     1. over source rows: resets ``new`` (no hypothesis, positions on the pixel grid, ``blacklist``
-       copied from ``old``: it stays with the pixel location), warps each hypothesis and runs its
-       checks (each source pixel writes only its own entry of the work arrays);
+       copied from ``old``: it stays with the pixel location) and warps every pixel of the row in one
+       branch-free (vectorised) loop, then runs each hypothesis's checks (each source pixel writes
+       only its own entry of the work arrays; ``work.var`` holds the warped depth's z until then);
     2. over bands of TARGET rows: a band visits, in raster order, the source rows whose hypotheses
        land in it (pass 1 records each source row's range of target rows) and resolves the
        collisions on its own target pixels. Every target pixel sees its sources in raster order,
@@ -687,17 +688,34 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
     h, w = idepth_s.shape
     # pass 1: where each hypothesis lands (target >= 0: flat index; -1 border, -2 intensity, -3 none)
     target, w_d, w_var, w_u, w_v, row_lo, row_hi = work
+    r00, r01, r02 = R[0, 0], R[0, 1], R[0, 2]
+    r10, r11, r12 = R[1, 0], R[1, 1], R[1, 2]
+    r20, r21, r22 = R[2, 0], R[2, 1], R[2, 2]
+    t0, t1, t2 = t[0], t[1], t[2]
     n_border = 0
     n_int = 0
     for y in prange(h):
         lo_y = h
         hi_y = -1
+        # the warp of every pixel of the row first, valid or not (branch-free: vectorised), then the checks
         for x in range(w):
+            d = np.float64(idepth_s[y, x])
+            rx = (np.float64(pos_x[y, x]) - cx) / fx
+            ry = (np.float64(pos_y[y, x]) - cy) / fy
+            qx = (r00 * rx + r01 * ry + r02) / d + t0
+            qy = (r10 * rx + r11 * ry + r12) / d + t1
+            qz = (r20 * rx + r21 * ry + r22) / d + t2
+            d_new = 1.0 / qz
+            w_d[y, x] = d_new
+            w_u[y, x] = fx * qx * d_new + cx
+            w_v[y, x] = fy * qy * d_new + cy
+            w_var[y, x] = qz
             o_valid[y, x] = 0
             o_pos_x[y, x] = x
             o_pos_y[y, x] = y
             o_blacklist[y, x] = blacklist[y, x]
             target[y, x] = -3
+        for x in range(w):
             if valid[y, x] == 0:
                 continue
             target[y, x] = -1
@@ -707,17 +725,13 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
                 continue
             px = np.float64(pos_x[y, x])
             py = np.float64(pos_y[y, x])
-            rx = (px - cx) / fx
-            ry = (py - cy) / fy
-            qx = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) / d + t[0]
-            qy = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) / d + t[1]
-            qz = (R[2, 0] * rx + R[2, 1] * ry + R[2, 2]) / d + t[2]
+            qz = w_var[y, x]
             if not (qz > 0.0):
                 n_border += 1
                 continue
-            d_new = 1.0 / qz
-            u = fx * qx * d_new + cx
-            v = fy * qy * d_new + cy
+            d_new = w_d[y, x]
+            u = w_u[y, x]
+            v = w_v[y, x]
             if not (u >= border and v >= border and u <= w - 1 - border and v <= h - 1 - border
                     and u < w - 1 and v < h - 1 and u >= 0.0 and v >= 0.0):
                 n_border += 1
@@ -745,10 +759,7 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             ratio = d_new / d
             ratio *= ratio
             target[y, x] = iy * w + ix
-            w_d[y, x] = d_new
             w_var[y, x] = ratio * ratio * idepth_var[y, x] + var_add
-            w_u[y, x] = u
-            w_v[y, x] = v
             if iy < lo_y:
                 lo_y = iy
             if iy > hi_y:
