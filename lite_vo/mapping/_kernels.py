@@ -255,11 +255,12 @@ def _slide_into(p, q, dp, dq, lo, hi):
     return p + k * dp, q + k * dq
 
 
-@njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
 def _min_in(a, lo, hi):
     """The smallest of ``a[lo:hi]`` below 1e50, else 1e50 (NaN never counts): what one scan with ``<``
     starting from 1e50 finds, as four interleaved scans (no chain of dependent compares: the stereo
-    pass's best and second-best match, 10 % of its time)."""
+    pass's best and second-best match, 10 % of its time). Not inlined by numba: a copy per call site
+    added a fifth to the mapping kernels' compile time (the warm-up), for no speed."""
     m0 = 1e50
     m1 = 1e50
     m2 = 1e50
@@ -415,10 +416,10 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     if best_err < 1e50:
         while ssd[best] != best_err:
             best += 1
-    second_err = _min_in(ssd, 0, best - 1)
-    e_hi = _min_in(ssd, best + 2, n_steps)
-    if e_hi < second_err:
-        second_err = e_hi
+    # the second best: the smallest SSD at least two windows from the best (NaN never counts)
+    for k in range(max(best - 1, 0), min(best + 2, n_steps)):
+        ssd[k] = np.nan
+    second_err = _min_in(ssd, 0, n_steps)
     if not (best_err <= 4.0 * prm[P_SSD_MAX]):
         return NO_MATCH, 0.0, 0.0, epl_length, best_err
     if prm[P_AMBIGUITY] * best_err > second_err:
