@@ -795,12 +795,7 @@ class VisualOdometry:
             self._waited = []       # no start-up to resolve (verify_init off): the skipped frames keep no pose
         self._initialized = True
         self.metric = bool(use_depth)
-        self._last_pose = T_world_cam.copy()
-        self._last_good_pose = T_world_cam.copy()
-        self._velocity = np.eye(4)
-        self._velocity_dt = 0.0
-        self._pose_t = frame.timestamp
-        self._lost_count = 0
+        self._accept_pose(T_world_cam.copy(), frame.timestamp, smooth=False)
         self.counts["tracked"] += 1
         if event == "reinit":
             self.counts["reinit"] += 1
