@@ -450,6 +450,42 @@ def test_regularize_matches_naive(var_mode):
     assert 0 < m.sum() < st["valid"].sum()
 
 
+
+@pytest.mark.parametrize("radius", [1, 2, 3])
+def test_regularize_sparse_spans_match_naive(radius):
+    """The kernel accumulates only spans of 8-pixel chunks holding a hypothesis: a semi-dense map with
+    empty rows, empty runs longer and shorter than a chunk, and hypotheses in the first and last
+    columns (a width that is not a multiple of 8) gives what the naive twin gives."""
+    rng = np.random.default_rng(11)
+    h, w = 21, 45
+    st = _random_state(rng, h, w, 0.0)
+    valid = np.zeros((h, w), np.uint8)
+    for y in range(h):
+        if y % 5 == 3:
+            continue                                  # empty rows
+        for x0 in rng.integers(0, w, 3):              # clusters of a few pixels
+            valid[y, x0:x0 + int(rng.integers(1, 6))] = 1
+    valid[::2, 0] = 1
+    valid[1::2, w - 1] = 1
+    valid[7, 8:16] = 1                                 # exactly one chunk
+    st["valid"] = valid
+    st["validity"][:] = rng.uniform(5, 30, (h, w)).astype(np.float32)
+    a_d = np.zeros((h, w), np.float32)
+    a_v = np.zeros((h, w), np.float32)
+    a_valid = np.zeros((h, w), np.uint8)
+    bl = st["blacklist"].copy()
+    cfg = MappingConfig(reg_radius=radius, reg_dist_var=0.005625, reg_diff_fac=1.0, reg_validity_sum=24.0)
+    kernels.regularize_kernel(_ms({**st, "blacklist": bl, "idepth_s": a_d, "var_s": a_v}), mapping_params(cfg), a_valid,
+                              kernels.regularize_work(h, w, radius))
+    n_d, n_v, n_valid, n_bl = naive.regularize(st["idepth"], st["idepth_var"], st["valid"], st["validity"],
+                                               st["blacklist"], radius, 0.005625, 1.0, 24.0, 0)
+    np.testing.assert_array_equal(a_valid, n_valid)
+    np.testing.assert_array_equal(bl, n_bl)
+    m = n_valid == 1
+    np.testing.assert_allclose(a_d[m], n_d[m], rtol=1e-5)
+    np.testing.assert_allclose(a_v[m], n_v[m], rtol=1e-6)
+    assert 0 < m.sum() < valid.sum() and valid[:, 0].any() and valid[:, w - 1].any()
+
 def test_regularize_preserves_edges():
     """A depth step between two well-determined surfaces is not blurred."""
     h, w = 20, 20

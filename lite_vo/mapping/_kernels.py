@@ -835,6 +835,53 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
     return kept, n_border, n_int, n_occ, n_fused
 
 
+#: chunk width of :func:`regularize_kernel`'s spans (8 measured best of 4 / 8 / 16 on captured ICL maps)
+REG_CHUNK = 8
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _any_valid(row, lo, hi):
+    for k in range(lo, hi):
+        if row[k] != 0:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def _regularize_span(D, V, L, y, r, inv_tab, diff_fac, s, si, vs, vmin, x0, x1):
+    """Accumulate the compatible neighbours of row ``y``'s pixels ``x0 .. x1-1`` into ``s, si, vs,
+    vmin`` (see :func:`regularize_kernel`), offset by offset over the span. Branch-free with unsigned
+    indices and every load unconditional: LLVM vectorises it (a conditional load, or a signed index
+    that numba wraps around when negative, keeps it scalar and twice as slow)."""
+    nd = 2 * r + 1
+    w = s.shape[0]
+    dc = D[y + r, r:r + w]
+    vc = V[y + r, r:r + w]
+    ux0 = np.uint64(x0)
+    n = np.uint64(x1 - x0)
+    for k in range(n):
+        vmin[ux0 + k] = vc[ux0 + k]
+    for dy in range(nd):
+        Dr = D[y + dy]
+        Vr = V[y + dy]
+        Lr = L[y + dy]
+        for dx in range(nd):
+            add = inv_tab[dy * nd + dx]
+            un = ux0 + np.uint64(dx)
+            for k in range(n):
+                x = ux0 + k
+                dn = Dr[un + k]
+                vn = Vr[un + k]
+                ln = Lr[un + k]
+                diff = np.float64(dn) - dc[x]
+                ok = diff_fac * diff * diff <= np.float64(vn) + vc[x]   # as the reference: in float64
+                iv = 1.0 / (np.float64(vn) + add)
+                s[x] += dn * iv if ok else 0.0
+                si[x] += iv if ok else 0.0
+                vs[x] += ln if ok else 0.0
+                vmin[x] = vn if (ok and vn < vmin[x]) else vmin[x]
+
+
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
 def regularize_kernel(st, prm, o_valid, work):
     """Inverse-variance weighted, edge-preserving smoothing of the valid hypotheses of ``st``
@@ -849,7 +896,8 @@ def regularize_kernel(st, prm, o_valid, work):
 
     Vectorised: the map is copied once into padded float32 planes (inverse depth NaN where there is
     no hypothesis, so the compatibility test fails there without a branch), then every row is
-    accumulated offset by offset over the whole row (SIMD). The sums are float64: float32 sums
+    accumulated offset by offset (SIMD, :func:`_regularize_span`) over its spans of 8-pixel chunks
+    that hold a hypothesis (on ICL half of the chunks are empty: 0.54x the time). The sums are float64: float32 sums
     change the map by about 1e-6 relative, which is enough to move a degenerate run (a static
     camera, random init) elsewhere. ``work``: the :class:`RegularizeWork` planes (allocated once by the
     caller for the map's size and radius; overwritten here).
@@ -888,27 +936,18 @@ def regularize_kernel(st, prm, o_valid, work):
         si = np.zeros(w, np.float64)
         vs = np.zeros(w, np.float64)
         vmin = np.empty(w, np.float32)
-        dc = D[y + r, r:r + w]
         vc = V[y + r, r:r + w]
-        for x in range(w):
-            vmin[x] = vc[x]
-        for dy in range(nd):
-            Dr = D[y + dy]
-            Vr = V[y + dy]
-            Lr = L[y + dy]
-            for dx in range(nd):
-                add = inv_tab[dy * nd + dx]
-                for x in range(w):
-                    dn = Dr[x + dx]
-                    vn = Vr[x + dx]
-                    diff = np.float64(dn) - dc[x]
-                    ok = diff_fac * diff * diff <= np.float64(vn) + vc[x]   # as the reference: in float64
-                    iv = 1.0 / (np.float64(vn) + add)
-                    s[x] += dn * iv if ok else 0.0
-                    si[x] += iv if ok else 0.0
-                    vs[x] += Lr[x + dx] if ok else 0.0
-                    if ok and vn < vmin[x]:
-                        vmin[x] = vn
+        # only the spans of REG_CHUNK-pixel chunks holding a hypothesis are accumulated (the map is
+        # semi-dense: about half of the chunks are empty, and nothing is read there below)
+        x = 0
+        while x < w:
+            while x < w and not _any_valid(valid[y], x, min(x + REG_CHUNK, w)):
+                x = min(x + REG_CHUNK, w)
+            x0 = x
+            while x < w and _any_valid(valid[y], x, min(x + REG_CHUNK, w)):
+                x = min(x + REG_CHUNK, w)
+            if x > x0:
+                _regularize_span(D, V, L, y, r, inv_tab, diff_fac, s, si, vs, vmin, x0, x)
         for x in range(w):
             if valid[y, x] == 0:
                 o_valid[y, x] = 0
