@@ -450,7 +450,6 @@ def test_regularize_matches_naive(var_mode):
     assert 0 < m.sum() < st["valid"].sum()
 
 
-
 @pytest.mark.parametrize("radius", [1, 2, 3])
 def test_regularize_sparse_spans_match_naive(radius):
     """The kernel accumulates only spans of 8-pixel chunks holding a hypothesis: a semi-dense map with
@@ -485,6 +484,7 @@ def test_regularize_sparse_spans_match_naive(radius):
     np.testing.assert_allclose(a_d[m], n_d[m], rtol=1e-5)
     np.testing.assert_allclose(a_v[m], n_v[m], rtol=1e-6)
     assert 0 < m.sum() < valid.sum() and valid[:, 0].any() and valid[:, w - 1].any()
+
 
 def test_regularize_preserves_edges():
     """A depth step between two well-determined surfaces is not blurred."""
