@@ -138,6 +138,30 @@ def test_min_in_is_a_plain_scan():
         assert kernels._min_in(a, lo, hi) == scan(a, lo, hi), (a, lo, hi)
 
 
+def test_min2_max2_are_the_builtins():
+    """The kernels' selects give what ``min`` / ``max`` give for every pair, NaN on either side
+    included (Python returns the first argument unless the second compares smaller / larger), for
+    floats (float32 and float64) and integers."""
+    from numba import njit
+
+    @njit
+    def both(a, b):
+        return kernels._min2(a, b), kernels._max2(a, b)
+
+    vals = [-2.5, -0.0, 0.0, 1.0, 3.25, np.inf, -np.inf, np.nan]
+    for a in vals:
+        for b in vals:
+            for cast in (np.float64, np.float32):
+                got = both(cast(a), cast(b))
+                want = (min(cast(a), cast(b)), max(cast(a), cast(b)))
+                for g, w in zip(got, want):
+                    assert (math.isnan(g) and math.isnan(w)) or (g == w and math.copysign(1, g) == math.copysign(1, w)), \
+                        (a, b, cast, got, want)
+    for a in range(-3, 4):
+        for b in range(-3, 4):
+            assert both(a, b) == (min(a, b), max(a, b))
+
+
 def test_line_stereo_edge_cases(tex):
     img_ref, cur, _, T_ref_cur = _stereo_case(tex, pose(), pose(tx=0.05), K_SMALL)
     gx, gy, _ = image_gradients(cur)

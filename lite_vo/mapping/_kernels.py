@@ -110,12 +110,25 @@ TOO_LONG = -5          # full search line longer than max_epl: try a newer refer
 NO_EPL = -6            # (observe only) epipolar line too short or gradient along it too weak
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _min2(a, b):
+    """``min(a, b)`` as a select (the same value, NaN included). numba compiles the builtins ``min``,
+    ``max`` and ``int`` of scalars as calls that LLVM leaves out of line: a loop with one is not vectorised."""
+    return b if b < a else a
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _max2(a, b):
+    """``max(a, b)`` as a select (the same value, NaN included); see :func:`_min2`."""
+    return b if b > a else a
+
+
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
 def _bilinear(img, x, y):
     """Bilinear sample; the caller guarantees 0 <= x < W-1 and 0 <= y < H-1 (unsigned indices: numba
     skips its negative-index wrap-around)."""
-    ix = int(x)
-    iy = int(y)
+    ix = np.int64(x)
+    iy = np.int64(y)
     dx = x - ix
     dy = y - iy
     ux = np.uint64(ix)
@@ -188,15 +201,15 @@ def gradients_kernel(img, gx, gy, maxgrad):
         if w == 1:
             rowmax[y, 0] = mag[y, 0]
             continue
-        rowmax[y, 0] = max(mag[y, 0], mag[y, 1])
-        rowmax[y, w - 1] = max(mag[y, w - 2], mag[y, w - 1])
+        rowmax[y, 0] = _max2(mag[y, 0], mag[y, 1])
+        rowmax[y, w - 1] = _max2(mag[y, w - 2], mag[y, w - 1])
         for x in range(1, w - 1):
-            rowmax[y, x] = max(max(mag[y, x - 1], mag[y, x]), mag[y, x + 1])
+            rowmax[y, x] = _max2(_max2(mag[y, x - 1], mag[y, x]), mag[y, x + 1])
     for y in prange(h):
-        y0 = max(y - 1, 0)
-        y1 = min(y + 1, h - 1)
+        y0 = _max2(y - 1, 0)
+        y1 = _min2(y + 1, h - 1)
         for x in range(w):
-            maxgrad[y, x] = max(max(rowmax[y0, x], rowmax[y, x]), rowmax[y1, x])
+            maxgrad[y, x] = _max2(_max2(rowmax[y0, x], rowmax[y, x]), rowmax[y1, x])
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", inline="always")
@@ -294,7 +307,7 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
     ``ref_a, ref_b``: brightness transfer of the reference into the current frame (the SSD compares
     ``ref_a * I_ref + ref_b`` with ``I_cur``: exposure changes do not bias the match);
     ``(gxi, gyi)`` half-central-difference gradient at (u, v); ``samples``, ``ssd``, ``frac_y`` (float64)
-    and ``at`` (uint64) scratch.
+    and ``at`` (int32) scratch.
     Returns (code, idepth, idepth_var, epl_length, error).
     """
     h, w = cur.shape
@@ -377,27 +390,32 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
 
     dxl = close_x - far_x
     dyl = close_y - far_y
-    n_steps = int(math.sqrt(dxl * dxl + dyl * dyl) + 1e-6) + 1
+    n_steps = np.int64(math.sqrt(dxl * dxl + dyl * dyl) + 1e-6) + 1
     if n_steps + 4 > samples.shape[0]:
         n_steps = samples.shape[0] - 4
     # reference samples at far + (j - 2) * inc, j = 0 .. n_steps + 3 (all inside by the border test)
     # bilinear, the same arithmetic as _bilinear, in two loops: the positions (vectorised; their x
-    # fractions kept in ssd until the SSDs overwrite them), then the four pixels of each
+    # fractions kept in ssd until the SSDs overwrite them), then the four pixels of each. The positions
+    # are positive, so floor = truncation; floor, an int32 index and an int32 counter keep every conversion
+    # a packed AVX2 one (there is none to or from int64; int() is even a call): the loop went from a fifth
+    # of the stereo pass's time to 4 %, and a loop that also samples (one loop) is slower
     rw = ref.shape[1]
     flat = ref.reshape(ref.size)
+    frw = np.float64(rw)
     for j in range(n_steps + 4):
-        x = far_x + (j - 2) * incx
-        y = far_y + (j - 2) * incy
-        ix = int(x)
-        iy = int(y)
-        ssd[j] = x - ix
-        frac_y[j] = y - iy
-        at[j] = iy * rw + ix
+        fj = np.float64(np.int32(j - 2))
+        x = far_x + fj * incx
+        y = far_y + fj * incy
+        fx0 = np.floor(x)
+        fy0 = np.floor(y)
+        ssd[j] = x - fx0
+        frac_y[j] = y - fy0
+        at[j] = np.int32(fy0 * frw + fx0)
     one = np.uint64(1)
     down = np.uint64(rw)
     down1 = np.uint64(rw + 1)
     for j in range(n_steps + 4):
-        k = at[j]
+        k = np.uint64(at[j])
         dx = ssd[j]
         dy = frac_y[j]
         sv = ((1.0 - dx) * (1.0 - dy) * flat[k] + dx * (1.0 - dy) * flat[k + one]
@@ -417,7 +435,7 @@ def line_stereo(cur, ref, u, v, epxn, epyn, min_id, prior_id, max_id, R, t, fx, 
         while ssd[best] != best_err:
             best += 1
     # the second best: the smallest SSD at least two windows from the best (NaN never counts)
-    for k in range(max(best - 1, 0), min(best + 2, n_steps)):
+    for k in range(_max2(best - 1, 0), _min2(best + 2, n_steps)):
         ssd[k] = np.nan
     second_err = _min_in(ssd, 0, n_steps)
     if not (best_err <= 4.0 * prm[P_SSD_MAX]):
@@ -520,7 +538,7 @@ def observe_kernel(cur, gx, gy, maxgrad, refs, st, cam, prm, stride, offset, scr
         samples = np.empty(scratch_len, np.float64)
         ssd = np.empty(scratch_len, np.float64)
         frac_y = np.empty(scratch_len, np.float64)
-        at = np.empty(scratch_len, np.uint64)
+        at = np.empty(scratch_len, np.int32)
         for x in range(3, w - 3):
             status[y, x] = 0
             has = valid[y, x] != 0
@@ -738,8 +756,8 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
                 n_border += 1
                 continue
             target[y, x] = -2
-            ix = int(u + 0.5)
-            iy = int(v + 0.5)
+            ix = np.int64(u + 0.5)
+            iy = np.int64(v + 0.5)
             g = np.float64(maxgrad_new[iy, ix])
             # the new intensity; for a pixel without gradient only when keep_clipped asks whether it is
             # clipped (flattened by clipping, not textureless: kept)
@@ -751,7 +769,7 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             if px >= 0.0 and py >= 0.0 and px < w - 1 and py < h - 1:
                 src = _bilinear(img_old, px, py)
             else:
-                src = np.float64(img_old[min(max(int(py + 0.5), 0), h - 1), min(max(int(px + 0.5), 0), w - 1)])
+                src = np.float64(img_old[_min2(_max2(np.int64(py + 0.5), 0), h - 1), _min2(_max2(np.int64(px + 0.5), 0), w - 1)])
             r = dst - (aff[0] * src + aff[1])
             clipped = (sat_check or flat_clipped) and (src >= sat or dst >= sat)  # not comparable
             if not clipped and r * r / (diff_const2 + diff_grad_mult * g * g) > 1.0:
@@ -941,11 +959,11 @@ def regularize_kernel(st, prm, o_valid, work):
         # semi-dense: about half of the chunks are empty, and nothing is read there below)
         x = 0
         while x < w:
-            while x < w and not _any_valid(valid[y], x, min(x + REG_CHUNK, w)):
-                x = min(x + REG_CHUNK, w)
+            while x < w and not _any_valid(valid[y], x, _min2(x + REG_CHUNK, w)):
+                x = _min2(x + REG_CHUNK, w)
             x0 = x
-            while x < w and _any_valid(valid[y], x, min(x + REG_CHUNK, w)):
-                x = min(x + REG_CHUNK, w)
+            while x < w and _any_valid(valid[y], x, _min2(x + REG_CHUNK, w)):
+                x = _min2(x + REG_CHUNK, w)
             if x > x0:
                 _regularize_span(D, V, L, y, r, inv_tab, diff_fac, s, si, vs, vmin, x0, x)
         for x in range(w):
@@ -1017,7 +1035,7 @@ def fill_kernel(st, maxgrad, prm, new_flag, work):
             hv[y, x] = pv[x - 2] + pv[x - 1] + pv[x] + pv[x + 1] + pv[x + 2]
             hs[y, x] = ps[x - 2] + ps[x - 1] + ps[x] + ps[x + 1] + ps[x + 2]
             hi[y, x] = pi[x - 2] + pi[x - 1] + pi[x] + pi[x + 1] + pi[x + 2]
-            hr[y, x] = min(min(min(pr[x - 2], pr[x - 1]), min(pr[x], pr[x + 1])), pr[x + 2])
+            hr[y, x] = _min2(_min2(_min2(pr[x - 2], pr[x - 1]), _min2(pr[x], pr[x + 1])), pr[x + 2])
     for y in prange(2, h - 2):
         for x in range(2, w - 2):
             if valid[y, x] != 0 or maxgrad[y, x] < min_grad:
@@ -1029,7 +1047,7 @@ def fill_kernel(st, maxgrad, prm, new_flag, work):
             if not (si > 0.0):
                 continue
             s = hs[y - 2, x] + hs[y - 1, x] + hs[y, x] + hs[y + 1, x] + hs[y + 2, x]
-            rid = min(min(min(hr[y - 2, x], hr[y - 1, x]), min(hr[y, x], hr[y + 1, x])), hr[y + 2, x])
+            rid = _min2(_min2(_min2(hr[y - 2, x], hr[y - 1, x]), _min2(hr[y, x], hr[y + 1, x])), hr[y + 2, x])
             m = s / si
             idepth[y, x] = m
             idepth_s[y, x] = m

@@ -261,8 +261,8 @@ def accumulate(pts, img3, interp, T, cam, prm, aff_a, aff_b, buf, acc):
         v = fy * qy * iz + cy
         if not (u >= border and u < umax and v >= border and v < vmax):
             continue
-        x0 = int(u)
-        y0 = int(v)
+        x0 = np.int64(u)
+        y0 = np.int64(v)
         ax = u - x0
         ay = v - y0
         if interp == INTERP_BSPLINE:
