@@ -866,11 +866,16 @@ def _any_valid(row, lo, hi):
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
-def _regularize_span(D, V, L, y, r, inv_tab, diff_fac, s, si, vs, vmin, x0, x1):
+def _regularize_span(D, V, L, y, r, inv_tab, diff_fac, s, si, vs, vmin, vtmp, x0, x1):
     """Accumulate the compatible neighbours of row ``y``'s pixels ``x0 .. x1-1`` into ``s, si, vs,
     vmin`` (see :func:`regularize_kernel`), offset by offset over the span. Branch-free with unsigned
     indices and every load unconditional: LLVM vectorises it (a conditional load, or a signed index
-    that numba wraps around when negative, keeps it scalar: 4.5x slower on captured ICL maps)."""
+    that numba wraps around when negative, keeps it scalar: 4.5x slower on captured ICL maps).
+
+    The running minimum ``vmin`` alternates with ``vtmp`` (float32 scratch of the row's length): each offset
+    reads one and writes the other. Updated in place, ``vmin[x] = vn if ... else vmin[x]`` became two
+    masked stores (``vmaskmovpd``), slow on AMD: the whole loop ran 1.5-2x longer than with this
+    unconditional store. There are (2r + 1)^2 offsets, an odd number, so the last one writes ``vmin``."""
     nd = 2 * r + 1
     w = s.shape[0]
     dc = D[y + r, r:r + w]
@@ -878,7 +883,7 @@ def _regularize_span(D, V, L, y, r, inv_tab, diff_fac, s, si, vs, vmin, x0, x1):
     ux0 = np.uint64(x0)
     n = np.uint64(x1 - x0)
     for k in range(n):
-        vmin[ux0 + k] = vc[ux0 + k]
+        vtmp[ux0 + k] = vc[ux0 + k]
     for dy in range(nd):
         Dr = D[y + dy]
         Vr = V[y + dy]
@@ -886,6 +891,9 @@ def _regularize_span(D, V, L, y, r, inv_tab, diff_fac, s, si, vs, vmin, x0, x1):
         for dx in range(nd):
             add = inv_tab[dy * nd + dx]
             un = ux0 + np.uint64(dx)
+            even = (dy * nd + dx) % 2 == 0
+            src = vtmp if even else vmin
+            dst = vmin if even else vtmp
             for k in range(n):
                 x = ux0 + k
                 dn = Dr[un + k]
@@ -897,7 +905,8 @@ def _regularize_span(D, V, L, y, r, inv_tab, diff_fac, s, si, vs, vmin, x0, x1):
                 s[x] += dn * iv if ok else 0.0
                 si[x] += iv if ok else 0.0
                 vs[x] += ln if ok else 0.0
-                vmin[x] = vn if (ok and vn < vmin[x]) else vmin[x]
+                m = src[x]
+                dst[x] = vn if (ok and vn < m) else m
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy", parallel=True)
@@ -954,6 +963,7 @@ def regularize_kernel(st, prm, o_valid, work):
         si = np.zeros(w, np.float64)
         vs = np.zeros(w, np.float64)
         vmin = np.empty(w, np.float32)
+        vtmp = np.empty(w, np.float32)
         vc = V[y + r, r:r + w]
         # only the spans of REG_CHUNK-pixel chunks holding a hypothesis are accumulated (the map is
         # semi-dense: about half of the chunks are empty, and nothing is read there below)
@@ -965,7 +975,7 @@ def regularize_kernel(st, prm, o_valid, work):
             while x < w and _any_valid(valid[y], x, _min2(x + REG_CHUNK, w)):
                 x = _min2(x + REG_CHUNK, w)
             if x > x0:
-                _regularize_span(D, V, L, y, r, inv_tab, diff_fac, s, si, vs, vmin, x0, x)
+                _regularize_span(D, V, L, y, r, inv_tab, diff_fac, s, si, vs, vmin, vtmp, x0, x)
         for x in range(w):
             if valid[y, x] == 0:
                 o_valid[y, x] = 0
