@@ -155,8 +155,8 @@ def test_min2_max2_are_the_builtins():
                 got = both(cast(a), cast(b))
                 want = (min(cast(a), cast(b)), max(cast(a), cast(b)))
                 for g, w in zip(got, want):
-                    assert (math.isnan(g) and math.isnan(w)) or (g == w and math.copysign(1, g) == math.copysign(1, w)), \
-                        (a, b, cast, got, want)
+                    same = g == w and math.copysign(1, g) == math.copysign(1, w)
+                    assert (math.isnan(g) and math.isnan(w)) or same, (a, b, cast, got, want)
     for a in range(-3, 4):
         for b in range(-3, 4):
             assert both(a, b) == (min(a, b), max(a, b))
