@@ -769,7 +769,9 @@ def propagate_kernel(old, img_old, img_new, maxgrad_new, R, t, cam, prm, aff, ne
             if px >= 0.0 and py >= 0.0 and px < w - 1 and py < h - 1:
                 src = _bilinear(img_old, px, py)
             else:
-                src = np.float64(img_old[_min2(_max2(np.int64(py + 0.5), 0), h - 1), _min2(_max2(np.int64(px + 0.5), 0), w - 1)])
+                sy = _min2(_max2(np.int64(py + 0.5), 0), h - 1)      # nearest source pixel, clamped
+                sx = _min2(_max2(np.int64(px + 0.5), 0), w - 1)
+                src = np.float64(img_old[sy, sx])
             r = dst - (aff[0] * src + aff[1])
             clipped = (sat_check or flat_clipped) and (src >= sat or dst >= sat)  # not comparable
             if not clipped and r * r / (diff_const2 + diff_grad_mult * g * g) > 1.0:
@@ -924,8 +926,8 @@ def regularize_kernel(st, prm, o_valid, work):
     Vectorised: the map is copied once into padded float32 planes (inverse depth NaN where there is
     no hypothesis, so the compatibility test fails there without a branch), then every row is
     accumulated offset by offset (SIMD, :func:`_regularize_span`) over its spans of 8-pixel chunks
-    that hold a hypothesis (on ICL about half of the chunks are empty: half the time). The sums are float64: float32 sums
-    change the map by about 1e-6 relative, which is enough to move a degenerate run (a static
+    that hold a hypothesis (on ICL about half of the chunks are empty: half the time). The sums are
+    float64: float32 sums change the map by about 1e-6 relative, which is enough to move a degenerate run (a static
     camera, random init) elsewhere. ``work``: the :class:`RegularizeWork` planes (allocated once by the
     caller for the map's size and radius; overwritten here).
     """
